@@ -1,0 +1,174 @@
+"""Every constant of the grasping world in one place, each with where it comes from.
+
+"Benchmark" is the simulated grasping benchmark APR extends (Quillen et al. 2018; bullet3's
+``kuka_diverse_object_gym_env.py`` and ``kuka.py``). "Paper" is APR (Zaky et al.), Method A. Anything marked
+"ours" is a choice the paper leaves open; ``docs/decisions.md`` gives the reason for each.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+Vec3 = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class PhysicsSpec:
+    """Simulation settings (benchmark)."""
+
+    time_step: float = 1.0 / 240.0
+    gravity: float = -10.0
+    solver_iterations: int = 150
+    action_repeat: int = 80
+    """Simulation steps per agent action, on every step including the last (benchmark; its defect fixed)."""
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """Where things stand (benchmark, plus the head and the passive cameras)."""
+
+    table_position: Vec3 = (0.5, 0.0, -0.82)
+    tray_position: Vec3 = (0.64, 0.075, -0.19)
+    tray_orientation: tuple[float, float, float, float] = (0.0, 0.0, 1.0, 0.0)
+    kuka_base_position: Vec3 = (-0.1, 0.0, 0.07)
+    head_base_position: Vec3 = (1.12, 0.075, -0.194)
+    """ours: the xArm6 stands on the table on the far side of the tray, facing the Kuka."""
+    bin_centre: Vec3 = (0.55, 0.0, -0.15)
+    """ours: the initial fixation point, the centre of the object drop area at object height."""
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """The procedurally generated objects and how they are dropped (benchmark)."""
+
+    mass: float = 0.1
+    drop_x: tuple[float, float] = (0.4, 0.3)
+    """x = drop_x[0] + drop_x[1] * U."""
+    drop_y_width: float = 0.3
+    """y = drop_y_width * (U - 0.5)."""
+    drop_z: float = 0.15
+    min_spacing: float = 0.08
+    """ours: objects dropped together are at least this far apart in xy (no interpenetration at spawn)."""
+    settle_steps_max: int = 1000
+    settle_check_every: int = 20
+    settle_speed: float = 0.02
+    """ours: the drop has settled when every object is slower than this (m/s and rad/s)."""
+    tray_inner_x: tuple[float, float] = (0.36, 0.92)
+    tray_inner_y: tuple[float, float] = (-0.23, 0.35)
+    """ours: an object whose base is outside this xy box after settling has fallen out of the tray."""
+    park_position: Vec3 = (0.0, 0.0, -50.0)
+    """ours: where unused objects of the pool wait (static, collision-free, out of every view)."""
+    pool_size: int = 200
+    """ours: the most objects kept loaded; the least recently used is unloaded beyond that."""
+
+
+@dataclass(frozen=True)
+class ArmSpec:
+    """The Kuka iiwa with its WSG gripper and its Cartesian controller (benchmark ``kuka.py``)."""
+
+    initial_joint_positions: tuple[float, ...] = (
+        0.006418, 0.413184, -0.011401, -1.589317, 0.005379, 1.137684, -0.006539,
+        0.000048, -0.299912, 0.0, -0.000043, 0.299960, 0.0, -0.0002,
+    )  # fmt: skip
+    end_effector_link: int = 6
+    gripper_yaw_joint: int = 7
+    finger_joints: tuple[int, int] = (8, 11)
+    fingertip_joints: tuple[int, int] = (10, 13)
+    gripper_links: tuple[int, ...] = (7, 8, 9, 10, 11, 12, 13)
+    initial_end_effector_position: Vec3 = (0.537, 0.0, 0.5)
+    max_force: float = 200.0
+    position_gain: float = 0.03
+    velocity_gain: float = 1.0
+    finger_a_force: float = 6.0
+    finger_b_force: float = 5.5
+    fingertip_force: float = 6.0
+    finger_open: float = 0.3
+    workspace_x: tuple[float, float] = (0.45, 0.75)
+    workspace_y: tuple[float, float] = (-0.22, 0.22)
+    workspace_z: tuple[float, float] = (0.05, 0.55)
+    """Commanded end-effector bounds: x and y from the benchmark; z ours (start height 0.5, room to descend)."""
+    max_tilt: float = math.pi / 4
+    """ours: |b| and |c| (tilts of the gripper away from pointing down) are clipped to this, in rad."""
+
+
+@dataclass(frozen=True)
+class GraspSpec:
+    """The grasp routine and the success test (benchmark), the episode length (paper)."""
+
+    position_step: float = 0.06
+    """m per unit action per axis (benchmark)."""
+    angle_step: float = 0.25
+    """rad per unit action per Euler angle (benchmark, extended to the paper's three angles)."""
+    grasp_height: float = -0.115
+    """A grasp is initiated when the tool tip (midpoint of the fingertips) is at or below this z. The
+    benchmark's trigger is end-effector z <= 0.1; its fingertips hang 0.215 m lower when pointing down."""
+    close_steps: int = 500
+    lift_steps: int = 500
+    lift_speed: float = 0.001
+    """m the end-effector target rises per simulation step of the lift (benchmark)."""
+    success_height: float = 0.2
+    """An object is lifted when its base ends above this z (benchmark)."""
+    max_grasp_steps: int = 15
+    """Paper: a grasp episode lasts at most 15 steps."""
+
+
+@dataclass(frozen=True)
+class HeadSpec:
+    """The head: an xArm6 carrying a camera on its wrist, and how views are sampled (ours within the paper)."""
+
+    camera_link: int = 6
+    camera_offset: float = 0.03
+    """m from the flange to the optical centre, along the flange normal."""
+    yaw_range: tuple[float, float] = (-0.7, 0.7)
+    """rad, azimuth of the camera around the fixation point, 0 = on the +x side (facing the Kuka)."""
+    pitch_range: tuple[float, float] = (0.6, 1.1)
+    """rad, elevation of the camera above the fixation point's horizontal plane."""
+    distance_range: tuple[float, float] = (0.32, 0.45)
+    """m from the camera to the fixation point."""
+    fov_deg: float = 60.0
+    ik_iterations: int = 4
+    """Refinement passes of the IK (each resets the joints to the last solution and solves again)."""
+    max_pose_tries: int = 8
+    """Viewpoints drawn until one is reached with its line of sight within ``max_sight_error``."""
+    max_sight_error: float = 0.01
+    rest_joint_positions: tuple[float, ...] = (0.0, -0.3, -1.0, 0.0, 1.3, 0.0)
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """Rendering and the observation images (paper, SPEC section 2)."""
+
+    render_size: int = 256
+    image_size: int = 64
+    near: float = 0.01
+    far: float = 3.0
+    views_per_step: int = 3
+    passive_fov_deg: float = 50.0
+    passive_target: Vec3 = (0.62, 0.05, -0.05)
+    """ours: the three static cameras look at this point, between the tray floor and the gripper's start."""
+    passive_eyes: tuple[Vec3, Vec3, Vec3] = ((1.35, 0.05, 0.45), (0.75, 0.85, 0.5), (0.75, -0.75, 0.5))
+    """ours: front (facing the Kuka), left and right of the tray, each about 0.9-1 m away and 30-45 deg up."""
+
+
+@dataclass(frozen=True)
+class RewardSpec:
+    """Rewards (paper, Method A; the reach formula is ours)."""
+
+    fixation_radius: float = 0.10
+    """Learned fixation: the grasp counts only if the tool tip was within this of the fixation point."""
+    reach_scale: float = 1.0
+    """Dense reach reward per step = reach_scale * (d_before - d_after), d = tool tip to fixation point."""
+    workspace_low: Vec3 = (0.35, -0.25, -0.2)
+    workspace_high: Vec3 = (0.85, 0.30, 0.1)
+    """Learned fixation: the action in [-1, 1]^3 maps linearly onto this box (m)."""
+
+
+PHYSICS = PhysicsSpec()
+SCENE = SceneSpec()
+OBJECTS = ObjectSpec()
+ARM = ArmSpec()
+GRASP = GraspSpec()
+HEAD = HeadSpec()
+CAMERA = CameraSpec()
+REWARD = RewardSpec()

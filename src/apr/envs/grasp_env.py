@@ -1,0 +1,287 @@
+"""Gymnasium environments of APR: ``apr/ActiveGrasp-v0`` (a head camera that looks) and ``apr/PassiveGrasp-v0``
+(three static cameras). Both share the episode logic of :class:`GraspEnv`; they differ only in how a step's
+three views are made.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from apr.envs.config import CAMERA, GRASP, PHYSICS
+from apr.envs.task import GraspTask
+from apr.envs.world import GraspWorld, passive_cameras
+from apr.foveation import FOVEATIONS, foveate
+
+DOFS = (4, 6)
+FIXATION_PHASE, GRASP_PHASE = 0, 1
+
+
+class GraspEnv(gym.Env):
+    """Episode logic shared by the active and passive environments (see their docstrings for the API)."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
+
+    def __init__(self, *, dof: int, target: str, foveation: str, split: str, renderer: str,
+                 render_mode: str | None, with_head: bool):  # fmt: skip
+        _check_choice("dof", dof, DOFS)
+        _check_choice("foveation", foveation, FOVEATIONS)
+        _check_choice("render_mode", render_mode, (None, *self.metadata["render_modes"]))
+        self.task = GraspTask(target, split)  # validates target and split
+        self.dof, self.foveation, self.render_mode = dof, foveation, render_mode
+        self.learned_fixation = target == "learned"
+        self.with_mask = target == "env"
+        self.world = GraspWorld(renderer, with_head=with_head)
+
+        views, size, channels = CAMERA.views_per_step, CAMERA.image_size, 4 if self.with_mask else 3
+        observation = {
+            "images": spaces.Box(0, 255, (views, size, size, channels), np.uint8),
+            "viewpoints": spaces.Box(-2 * np.pi, 2 * np.pi, (views, 6), np.float32),
+            "gripper": spaces.Box(-2.0, 2.0, (9,), np.float32),
+        }
+        grasp_action = spaces.Box(-1.0, 1.0, (dof,), np.float32)
+        if self.learned_fixation:
+            observation["phase"] = spaces.Discrete(2)
+            self.action_space = spaces.Dict({"fixation": spaces.Box(-1.0, 1.0, (3,), np.float32),
+                                             "grasp": grasp_action})  # fmt: skip
+        else:
+            self.action_space = grasp_action
+        self.observation_space = spaces.Dict(observation)
+
+        self.fixation_point: np.ndarray | None = None
+        self.raw_views: list[np.ndarray] = []
+        """The last step's three renders before foveation: uint8 (256, 256, 3 or 4), the mask last."""
+        self._phase = GRASP_PHASE
+        self._grasp_steps = 0
+        self._tip_distance = 0.0
+        self._episode_over = True
+
+    # ------------------------------------------------------------------------------------------------ API
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        self.fixation_point = self.task.reset(self.world, self.np_random)
+        self._phase = FIXATION_PHASE if self.learned_fixation else GRASP_PHASE
+        self._grasp_steps = 0
+        self._tip_distance = self._distance_to_fixation()
+        self._episode_over = False
+        return self._observation(), self._info()
+
+    def step(self, action):
+        if self._episode_over:
+            raise RuntimeError("the episode is over (or never started): call reset() before step()")
+        action = self._checked_action(action)
+        if self._phase == FIXATION_PHASE:
+            self.fixation_point = self.task.fixation_from_action(action["fixation"])
+            self._phase = GRASP_PHASE
+            self._tip_distance = self._distance_to_fixation()
+            return self._observation(), 0.0, False, False, self._info()
+
+        grasp = action["grasp"] if self.learned_fixation else action
+        delta_angles = np.zeros(3)
+        delta_angles[: self.dof - 3] = grasp[3:] * GRASP.angle_step
+        self.world.arm.move(grasp[:3] * GRASP.position_step, delta_angles)
+        self.world.step_simulation(PHYSICS.action_repeat)
+        self._grasp_steps += 1
+
+        distance = self._distance_to_fixation()
+        reach_reward = self.task.reach_reward(self._tip_distance, distance)
+        self._tip_distance = distance
+        tip = self.world.arm.tool_tip()
+        attempted = bool(tip[2] <= GRASP.grasp_height)
+        success, lifted = False, 0
+        if attempted:
+            self.world.arm.close_and_lift(self.world.step_simulation)
+            outcome = self.task.grasp_outcome(self.world, tip, self.fixation_point)
+            success, lifted = outcome.success, len(outcome.lifted)
+        grasp_reward = float(success)
+        terminated = attempted
+        truncated = not attempted and self._grasp_steps >= GRASP.max_grasp_steps
+        self._episode_over = terminated or truncated
+        info = self._info(attempted=attempted, success=success, lifted=lifted, reach_reward=reach_reward,
+                          grasp_reward=grasp_reward)  # fmt: skip
+        return self._observation(), grasp_reward + reach_reward, terminated, truncated, info
+
+    def render(self) -> np.ndarray | None:
+        """``rgb_array``: the first of the last step's raw 256x256 views, before foveation."""
+        if self.render_mode != "rgb_array" or not self.raw_views:
+            return None
+        return self.raw_views[0][..., :3].copy()
+
+    def close(self) -> None:
+        self.world.close()
+
+    # --------------------------------------------------------------------------------------------- helpers
+    def _render_views(self) -> tuple[list[np.ndarray], list[np.ndarray | None], np.ndarray]:
+        """The step's three raw RGB renders, their body-id masks (or None), and viewpoints (3, 6)."""
+        raise NotImplementedError
+
+    def _observation(self) -> dict[str, np.ndarray | int]:
+        rgbs, segmentations, viewpoints = self._render_views()
+        raw = []
+        for rgb, segmentation in zip(rgbs, segmentations, strict=True):
+            if self.with_mask:
+                mask = np.where(segmentation == self.task.target_uid, 255, 0).astype(np.uint8)
+                rgb = np.concatenate([rgb, mask[..., None]], axis=-1)
+            raw.append(rgb)
+        self.raw_views = raw
+        images = np.stack([foveate(view, self.foveation, CAMERA.image_size) for view in raw])
+        observation: dict[str, np.ndarray | int] = {
+            "images": images,
+            "viewpoints": viewpoints.astype(np.float32),
+            "gripper": self.world.arm.pose(),
+        }
+        if self.learned_fixation:
+            observation["phase"] = self._phase
+        return observation
+
+    def _info(self, attempted: bool = False, success: bool = False, lifted: int = 0, reach_reward: float = 0.0,
+              grasp_reward: float = 0.0) -> dict[str, Any]:  # fmt: skip
+        return {
+            "phase": self._phase,
+            "fixation_point": np.array(self.fixation_point, dtype=np.float32),
+            "grasp_steps": self._grasp_steps,
+            "grasp_attempted": attempted,
+            "grasp_success": success,
+            "objects_lifted": lifted,
+            "reach_reward": reach_reward,
+            "grasp_reward": grasp_reward,
+            "num_objects": len(self.world.object_uids),
+        }
+
+    def _distance_to_fixation(self) -> float:
+        return float(np.linalg.norm(self.world.arm.tool_tip() - self.fixation_point))
+
+    def _checked_action(self, action):
+        """Raise on NaN or infinite entries (naming them); clip the rest into the action box."""
+        if isinstance(self.action_space, spaces.Dict):
+            if not isinstance(action, dict) or set(action) != set(self.action_space.spaces):
+                raise ValueError(f"action must be a dict with keys {sorted(self.action_space.spaces)}, got {action!r}")
+            return {key: _checked_box(f"action[{key!r}]", action[key], space)
+                    for key, space in self.action_space.spaces.items()}  # fmt: skip
+        return _checked_box("action", action, self.action_space)
+
+
+class ActiveGraspEnv(GraspEnv):
+    """Grasping with a head camera that looks: the active model of APR (Zaky et al., Method A).
+
+    A Kuka arm with a two-finger gripper grasps procedurally generated objects from a tray (the benchmark of
+    Quillen et al. 2018), while a second arm, the head (an xArm6), carries a camera on its wrist and fixates a
+    point. Every step renders three views from viewpoints drawn on a sphere around the fixation point and
+    samples each 256x256 render to 64x64 with the log-polar-like warp (or a plain resize).
+
+    ## Arguments
+    ``gymnasium.make("apr/ActiveGrasp-v0", dof=6, target="env", foveation="logpolar", split="train",
+    renderer="auto")``
+
+    - ``dof``: 6 (dx, dy, dz, da, db, dc) or 4 (dx, dy, dz, da; the gripper points down).
+    - ``target``: "env" (the environment picks a target object and fixates it; its mask is a 4th channel) or
+      "learned" (the agent picks the fixation point: see Episode structure).
+    - ``foveation``: "logpolar" or "resize" (the "w/o log-polar" ablation).
+    - ``split``: "train" (at most 5 of the 900 training objects) or "test" (exactly 5 of the 100 held out).
+    - ``renderer``: "auto" (EGL if pybullet's plugin loads, else TinyRenderer), "egl" or "tiny".
+
+    ## Action Space
+    ``target="env"``: ``Box(-1, 1, (dof,), float32)``, the change of the gripper's commanded pose: position
+    0.06 m per unit on each axis, Euler angles 0.25 rad per unit. ``a`` turns the gripper about its own axis,
+    ``b`` and ``c`` tilt it about the world x and y axes (clipped to +-45 deg from pointing down).
+
+    ``target="learned"``: ``Dict(fixation=Box(-1, 1, (3,)), grasp=Box(-1, 1, (dof,)))``. In the fixation phase
+    only ``fixation`` is used: it maps linearly onto the workspace box x in [0.35, 0.85], y in [-0.25, 0.30],
+    z in [-0.2, 0.1] m. In the grasp phase only ``grasp`` is used, as above.
+
+    Entries outside [-1, 1] are clipped. A NaN or infinite entry raises ``ValueError`` naming it.
+
+    ## Observation Space
+    ``Dict`` with
+    - ``images``: uint8 (3, 64, 64, C), the step's three views, C = 4 with the target mask
+      (``target="env"``: 255 on the target object) and 3 otherwise.
+    - ``viewpoints``: float32 (3, 6), the head's six joint angles reached for each view (rad).
+    - ``gripper``: float32 (9,), the tool tip (x, y, z) in m and sin/cos of the Euler angles (a, b, c).
+    - ``phase`` (``target="learned"`` only): 0 in the fixation phase, 1 in the grasp phase.
+
+    ## Episode structure
+    ``target="env"``: reset fixates the target; then up to 15 grasp steps. ``target="learned"``: reset shows
+    three views around the bin centre (phase 0); the first ``step`` is the fixation action (reward 0; the
+    fixation policy's one-step contextual bandit, whose reward is the episode's grasp reward); then up to 15
+    grasp steps with views around the chosen point (phase 1).
+
+    ## Rewards
+    A grasp step earns the dense reach reward ``d_before - d_after`` (m of progress of the tool tip toward the
+    fixation point). The step that attempts a grasp also earns the sparse grasp reward, 1 if
+    ``target="env"`` and the target was lifted, or ``target="learned"`` and an object was lifted while the tool
+    tip was within 10 cm of the fixation point when the grasp started. ``info`` holds both parts
+    (``reach_reward``, ``grasp_reward``), so the fixation policy can be trained on the grasp reward only.
+
+    ## Episode End
+    Terminated when a grasp is attempted: the tool tip drops to z <= -0.115 m; the fingers then close and the
+    arm lifts, and the object counts as lifted when its base ends above z = 0.2 m. Truncated after 15 grasp
+    steps without an attempt. ``info["grasp_attempted"]`` and ``info["grasp_success"]`` tell the outcome.
+    """
+
+    def __init__(self, dof: int = 6, target: str = "env", foveation: str = "logpolar", split: str = "train",
+                 renderer: str = "auto", render_mode: str | None = None):  # fmt: skip
+        super().__init__(dof=dof, target=target, foveation=foveation, split=split, renderer=renderer,
+                         render_mode=render_mode, with_head=True)  # fmt: skip
+
+    def _render_views(self):
+        head = self.world.head
+        rgbs, segmentations, viewpoints = [], [], []
+        for _ in range(CAMERA.views_per_step):
+            camera, joints = head.look_at(self.fixation_point, self.np_random)
+            rgb, segmentation = self.world.render(camera, segmentation=self.with_mask)
+            rgbs.append(rgb)
+            segmentations.append(segmentation)
+            viewpoints.append(joints)
+        return rgbs, segmentations, np.stack(viewpoints)
+
+
+class PassiveGraspEnv(GraspEnv):
+    """Grasping seen by three static cameras: the passive model of APR (Zaky et al., Section 4A).
+
+    The same world and task as :class:`ActiveGraspEnv` with ``target="env"`` but no head: three fixed
+    cameras (front, left and right of the tray, about 1 m away) see the tray and the gripper, with no
+    attention to any object. Renders are 256x256 resized to 64x64 (no log-polar warp).
+
+    ## Arguments
+    ``gymnasium.make("apr/PassiveGrasp-v0", dof=6, split="train", renderer="auto")``, as for the active env.
+
+    ## Action Space
+    ``Box(-1, 1, (dof,), float32)``, as for ``apr/ActiveGrasp-v0`` with ``target="env"``.
+
+    ## Observation Space
+    ``images`` uint8 (3, 64, 64, 4) (RGB and the target mask), ``viewpoints`` float32 (3, 6) (each camera's
+    position and unit line of sight, constant), ``gripper`` float32 (9,).
+
+    ## Rewards and Episode End
+    As for ``apr/ActiveGrasp-v0`` with ``target="env"``: the reach reward toward the target's centre, 1 for
+    lifting the target; terminated by a grasp attempt, truncated after 15 steps.
+    """
+
+    def __init__(self, dof: int = 6, split: str = "train", renderer: str = "auto",
+                 render_mode: str | None = None):  # fmt: skip
+        super().__init__(dof=dof, target="env", foveation="resize", split=split, renderer=renderer,
+                         render_mode=render_mode, with_head=False)  # fmt: skip
+        self.cameras = passive_cameras()
+        self._viewpoints = np.stack([np.concatenate([cam.eye, cam.forward]) for cam in self.cameras])
+
+    def _render_views(self):
+        rendered = [self.world.render(camera, segmentation=True) for camera in self.cameras]
+        return [rgb for rgb, _ in rendered], [mask for _, mask in rendered], self._viewpoints.copy()
+
+
+def _check_choice(name: str, value: Any, valid: tuple) -> None:
+    if value not in valid:
+        raise ValueError(f"{name} must be one of {valid}, got {value!r}")
+
+
+def _checked_box(name: str, value: Any, space: spaces.Box) -> np.ndarray:
+    array = np.asarray(value, dtype=np.float64)
+    if array.shape != space.shape:
+        raise ValueError(f"{name} must have shape {space.shape}, got {array.shape}")
+    bad = np.flatnonzero(~np.isfinite(array))
+    if bad.size:
+        raise ValueError(f"{name}[{int(bad[0])}] is {array[bad[0]]}: actions must be finite")
+    return np.clip(array, space.low, space.high)

@@ -1,0 +1,185 @@
+"""The physical world: table, tray, Kuka with gripper, objects, the head, and the cameras. No rewards here.
+
+One :class:`GraspWorld` owns one pybullet physics client. Objects come from a pool: a URDF is loaded the first
+time its object is needed, then parked (static, collision-free, out of view) between uses and moved back in
+when drawn again, so a reset neither reloads meshes nor grows memory without bound.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Sequence
+
+import numpy as np
+import pybullet as p
+import pybullet_data
+from pybullet_utils.bullet_client import BulletClient
+
+from apr.envs.config import CAMERA, OBJECTS, PHYSICS, SCENE
+from apr.envs.head import Head
+from apr.envs.objects import object_urdf
+from apr.envs.rendering import Camera, load_renderer, release, render
+from apr.envs.robot import KukaGripper
+
+
+class GraspWorld:
+    """The benchmark's scene in one physics client, optionally with the head.
+
+    Args:
+        renderer: "auto" (EGL if its plugin loads, else TinyRenderer), "egl" or "tiny".
+        with_head: load the xArm6 head (the active model); the passive model has none.
+    """
+
+    def __init__(self, renderer: str = "auto", with_head: bool = True):
+        self.client = BulletClient(connection_mode=p.DIRECT)
+        c = self.client
+        self.renderer = load_renderer(c, renderer)
+        c.setAdditionalSearchPath(pybullet_data.getDataPath())
+        # Sorted contact pairs: the solver order no longer depends on which objects the pool loaded before.
+        c.setPhysicsEngineParameter(numSolverIterations=PHYSICS.solver_iterations, deterministicOverlappingPairs=1)
+        c.setTimeStep(PHYSICS.time_step)
+        c.setGravity(0, 0, PHYSICS.gravity)
+        c.loadURDF("plane.urdf", (0, 0, -1))
+        self.table_uid = c.loadURDF("table/table.urdf", SCENE.table_position)
+        self.tray_uid = c.loadURDF("tray/tray.urdf", SCENE.tray_position, SCENE.tray_orientation)
+        self.arm = KukaGripper(c, f"{pybullet_data.getDataPath()}/kuka_iiwa/kuka_with_gripper2.sdf")
+        self.head = Head(c) if with_head else None
+        self._pool: OrderedDict[int, int] = OrderedDict()  # object number -> body uid, least recent first
+        self._inertia: dict[int, tuple[float, float, float]] = {}
+        self.object_uids: list[int] = []
+        """Bodies of the objects in the scene this episode."""
+        self.object_numbers: list[int] = []
+        if self.renderer == "egl":
+            # The EGL renderer's first frames lack the shadows of later ones; render them now, so that an
+            # episode's images do not depend on whether it is the first in this world.
+            for camera in passive_cameras()[:2]:
+                self.render(camera)
+
+    def close(self) -> None:
+        if self.client is not None:
+            release(self.client)
+            self.client = None
+
+    def __del__(self) -> None:
+        self.close()
+
+    # ----------------------------------------------------------------------------------------------- physics
+    def step_simulation(self, steps: int = 1) -> None:
+        for _ in range(steps):
+            self.client.stepSimulation()
+
+    def reset_scene(self, numbers: Sequence[int], rng: np.random.Generator, all_in_tray: bool) -> None:
+        """Reset the arm and the head, then drop the objects ``numbers`` into the tray and let them settle.
+
+        Objects that land outside the tray are dropped again when ``all_in_tray`` (evaluation: exactly as many
+        objects as asked), and removed otherwise (training: at most as many).
+        """
+        self.arm.reset()
+        if self.head is not None:
+            self.head.reset()
+        for uid in self.object_uids:
+            self._park(uid)
+        uids = [self._acquire(number) for number in numbers]
+        self.object_uids, self.object_numbers = list(uids), list(numbers)
+        to_drop = list(uids)
+        for _ in range(5 if all_in_tray else 1):
+            self._drop(to_drop, rng)
+            to_drop = [uid for uid in to_drop if not self._in_tray(uid)]
+            if not to_drop:
+                break
+        for uid in to_drop:
+            index = self.object_uids.index(uid)
+            del self.object_uids[index], self.object_numbers[index]
+            self._park(uid)
+
+    def object_position(self, uid: int) -> np.ndarray:
+        return np.array(self.client.getBasePositionAndOrientation(uid)[0])
+
+    def object_centre(self, uid: int) -> np.ndarray:
+        """(3,) centre of the object's axis-aligned bounding box (m)."""
+        low, high = self.client.getAABB(uid)
+        return 0.5 * (np.array(low) + np.array(high))
+
+    def _drop(self, uids: Sequence[int], rng: np.random.Generator) -> None:
+        placed: list[np.ndarray] = []
+        for uid in uids:
+            xy = self._draw_drop_xy(rng, placed)
+            placed.append(xy)
+            yaw = rng.uniform(0.0, 2.0 * np.pi)
+            orientation = self.client.getQuaternionFromEuler((0.0, 0.0, yaw))
+            self._unpark(uid, (xy[0], xy[1], OBJECTS.drop_z), orientation)
+        self._settle(uids)
+
+    def _draw_drop_xy(self, rng: np.random.Generator, placed: list[np.ndarray]) -> np.ndarray:
+        """The benchmark's drop distribution, redrawn while closer than ``min_spacing`` to an earlier object."""
+        xy = np.zeros(2)
+        for _ in range(100):
+            xy = np.array([
+                OBJECTS.drop_x[0] + OBJECTS.drop_x[1] * rng.uniform(),
+                OBJECTS.drop_y_width * (rng.uniform() - 0.5),
+            ])  # fmt: skip
+            if all(np.linalg.norm(xy - other) >= OBJECTS.min_spacing for other in placed):
+                break
+        return xy
+
+    def _settle(self, uids: Sequence[int]) -> None:
+        """Step until every object in ``uids`` is at rest (or ``settle_steps_max`` steps)."""
+        for _ in range(0, OBJECTS.settle_steps_max, OBJECTS.settle_check_every):
+            self.step_simulation(OBJECTS.settle_check_every)
+            speeds = [np.abs(np.concatenate(self.client.getBaseVelocity(uid))).max() for uid in uids]
+            if max(speeds, default=0.0) < OBJECTS.settle_speed:
+                return
+
+    def _in_tray(self, uid: int) -> bool:
+        x, y, _ = self.object_position(uid)
+        return (OBJECTS.tray_inner_x[0] <= x <= OBJECTS.tray_inner_x[1]) and (
+            OBJECTS.tray_inner_y[0] <= y <= OBJECTS.tray_inner_y[1]
+        )
+
+    # ------------------------------------------------------------------------------------------- object pool
+    def _acquire(self, number: int) -> int:
+        """The body of object ``number``: from the pool, or loaded (the least recently used is unloaded)."""
+        if number in self._pool:
+            self._pool.move_to_end(number)
+            return self._pool[number]
+        if len(self._pool) >= OBJECTS.pool_size:
+            _, evicted = self._pool.popitem(last=False)
+            self.client.removeBody(evicted)
+            del self._inertia[evicted]
+        uid = self.client.loadURDF(object_urdf(number), OBJECTS.park_position)
+        self._inertia[uid] = self.client.getDynamicsInfo(uid, -1)[2]
+        self._pool[number] = uid
+        self._park(uid)
+        return uid
+
+    def _park(self, uid: int) -> None:
+        c = self.client
+        c.changeDynamics(uid, -1, mass=0.0)
+        c.setCollisionFilterGroupMask(uid, -1, 0, 0)
+        c.resetBasePositionAndOrientation(uid, OBJECTS.park_position, (0, 0, 0, 1))
+
+    def _unpark(self, uid: int, position: Sequence[float], orientation: Sequence[float]) -> None:
+        c = self.client
+        c.resetBasePositionAndOrientation(uid, position, orientation)
+        c.resetBaseVelocity(uid, (0, 0, 0), (0, 0, 0))
+        c.changeDynamics(uid, -1, mass=OBJECTS.mass, localInertiaDiagonal=self._inertia[uid])
+        c.setCollisionFilterGroupMask(uid, -1, 1, -1)
+
+    # --------------------------------------------------------------------------------------------- rendering
+    def render(self, camera: Camera, segmentation: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+        """RGB (uint8, (256, 256, 3)) and, when asked, body ids (int32, (256, 256)) seen by ``camera``."""
+        return render(
+            self.client, camera, CAMERA.render_size, self.renderer, CAMERA.near, CAMERA.far, segmentation
+        )
+
+
+def passive_cameras() -> list[Camera]:
+    """The passive model's three static cameras: they see the tray and the gripper, with no attention."""
+    target = np.array(CAMERA.passive_target)
+    cameras = []
+    for eye in CAMERA.passive_eyes:
+        eye = np.array(eye)
+        forward = (target - eye) / np.linalg.norm(target - eye)
+        up = np.array([0.0, 0.0, 1.0]) - forward[2] * forward
+        cameras.append(Camera(eye=eye, forward=forward, up=up / np.linalg.norm(up), fov_deg=CAMERA.passive_fov_deg))
+    return cameras
