@@ -112,7 +112,8 @@ def logpolar_warp_torch(images: torch.Tensor, out_size: int = 64) -> torch.Tenso
     import torch
     import torch.nn.functional as F
 
-    grid = torch.as_tensor(logpolar_grid(out_size), dtype=images.dtype, device=images.device)
+    # torch.tensor copies: the cached grid is read-only
+    grid = torch.tensor(logpolar_grid(out_size), dtype=images.dtype, device=images.device)
     grid = grid.unsqueeze(0).expand(images.shape[0], -1, -1, -1)
     return F.grid_sample(images, grid, mode="bilinear", padding_mode="border", align_corners=False)
 

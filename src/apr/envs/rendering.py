@@ -42,7 +42,7 @@ def load_renderer(client: BulletClient, renderer: str) -> str:
         warnings.warn(
             "renderer='auto' falls back to TinyRenderer: this process already has an EGL world open "
             "(one per process; AsyncVectorEnv gives each environment its own).",
-            stacklevel=2,
+            stacklevel=5,  # the caller of GraspWorld(...): the env constructor or user code
         )
         return "tiny"
     spec = importlib.util.find_spec("eglRenderer")

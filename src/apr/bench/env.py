@@ -1,0 +1,138 @@
+"""``apr bench env``: environment speed against the raw ceiling of the same work, for each renderer.
+
+Measured, per renderer, in a process of its own (one EGL world per process):
+
+- env step: ``ActiveGraspEnv`` (6-DoF, environment target, log-polar) with random actions that never descend,
+  so no step includes the 1,000-step grasp routine; per step: IK, 80 physics steps, three head poses, three
+  256x256 renders with masks, the warp.
+- raw ceiling: the same world and cameras, nothing but 80 ``stepSimulation`` calls and three renders per step.
+- env reset: the whole ``reset`` (drop and settle 5 objects from the pool, pick the target, three views).
+- reload reset: the benchmark's way, ``resetSimulation``, reload every URDF, then settle 2,500 steps.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class EnvBenchArgs:
+    """Time env steps and resets against the raw ceiling and the reload-everything reset."""
+
+    renderers: tuple[str, ...] = ("egl", "tiny")
+    """Renderers to measure, each in its own process."""
+    steps: int = 60
+    """Env steps timed per renderer (and as many raw-ceiling steps)."""
+    resets: int = 8
+    """Env resets timed per renderer."""
+    reloads: int = 3
+    """Reload-everything resets timed per renderer (about a second each)."""
+    seed: int = 0
+
+
+def run(args: EnvBenchArgs) -> None:
+    context = multiprocessing.get_context("spawn")
+    rows = []
+    for renderer in args.renderers:
+        with context.Pool(1) as pool:
+            rows.append(pool.apply(measure, (renderer, args)))
+    header = ("renderer", "env step/s", "raw step/s", "env/raw", "env reset/s", "reload reset/s", "reset speed-up")
+    print("| " + " | ".join(header) + " |")
+    print("|" + " --- |" * len(header))
+    for row in rows:
+        if row.get("unavailable"):
+            print(f"| {row['renderer']} | unavailable: {row['unavailable']} |")
+            continue
+        print(
+            f"| {row['renderer']} | {row['env_step_hz']:.2f} | {row['raw_step_hz']:.2f} | "
+            f"{row['env_step_hz'] / row['raw_step_hz']:.0%} | {row['env_reset_hz']:.2f} | "
+            f"{row['reload_reset_hz']:.3f} | {row['env_reset_hz'] / row['reload_reset_hz']:.1f}x |"
+        )
+
+
+def measure(renderer: str, args: EnvBenchArgs) -> dict:
+    """All the timings of one renderer (runs in a fresh process)."""
+    from apr.envs.config import PHYSICS
+    from apr.envs.grasp_env import ActiveGraspEnv
+
+    try:
+        env = ActiveGraspEnv(dof=6, target="env", renderer=renderer)
+    except RuntimeError as error:
+        return {"renderer": renderer, "unavailable": str(error).split(".")[0]}
+    rng = np.random.default_rng(args.seed)
+    env.reset(seed=args.seed)
+
+    step_seconds = []
+    for _ in range(args.steps):
+        action = rng.uniform(-1.0, 1.0, env.dof).astype(np.float32)
+        action[2] = abs(action[2])  # never descend: no step includes the grasp routine
+        start = time.perf_counter()
+        _, _, terminated, truncated, info = env.step(action)
+        step_seconds.append(time.perf_counter() - start)
+        assert not info["grasp_attempted"]
+        if terminated or truncated:
+            env.reset()
+
+    world = env.world
+    cameras = [world.head.look_at(env.fixation_point, rng)[0] for _ in range(3)]
+    start = time.perf_counter()
+    for _ in range(args.steps):
+        world.step_simulation(PHYSICS.action_repeat)
+        for camera in cameras:
+            world.render(camera, segmentation=True)
+    raw_seconds = (time.perf_counter() - start) / args.steps
+
+    start = time.perf_counter()
+    for _ in range(args.resets):
+        env.reset()
+    reset_seconds = (time.perf_counter() - start) / args.resets
+    numbers = list(world.object_numbers)
+    env.close()
+
+    reload_seconds = _reload_reset_seconds(numbers, args.reloads, args.seed)
+    return {
+        "renderer": renderer,
+        "env_step_hz": 1.0 / float(np.mean(step_seconds)),
+        "raw_step_hz": 1.0 / raw_seconds,
+        "env_reset_hz": 1.0 / reset_seconds,
+        "reload_reset_hz": 1.0 / reload_seconds,
+    }
+
+
+def _reload_reset_seconds(numbers: list[int], repeats: int, seed: int) -> float:
+    """Mean seconds of the benchmark's reset: reset the simulation, reload every URDF, settle 2,500 steps."""
+    import pybullet as p
+    import pybullet_data
+    from pybullet_utils.bullet_client import BulletClient
+
+    from apr.envs.config import OBJECTS, PHYSICS, SCENE
+    from apr.envs.objects import object_urdf
+
+    client = BulletClient(connection_mode=p.DIRECT)
+    client.setAdditionalSearchPath(pybullet_data.getDataPath())
+    rng = np.random.default_rng(seed)
+    start = time.perf_counter()
+    for _ in range(repeats):
+        client.resetSimulation()
+        client.setPhysicsEngineParameter(numSolverIterations=PHYSICS.solver_iterations)
+        client.setTimeStep(PHYSICS.time_step)
+        client.setGravity(0, 0, PHYSICS.gravity)
+        client.loadURDF("plane.urdf", (0, 0, -1))
+        client.loadURDF("table/table.urdf", SCENE.table_position)
+        client.loadURDF("tray/tray.urdf", SCENE.tray_position, SCENE.tray_orientation)
+        kuka = client.loadSDF("kuka_iiwa/kuka_with_gripper2.sdf")[0]
+        client.resetBasePositionAndOrientation(kuka, SCENE.kuka_base_position, (0, 0, 0, 1))
+        client.loadURDF("xarm/xarm6_robot.urdf", SCENE.head_base_position, useFixedBase=True)
+        for number in numbers:
+            x = OBJECTS.drop_x[0] + OBJECTS.drop_x[1] * rng.uniform()
+            y = OBJECTS.drop_y_width * (rng.uniform() - 0.5)
+            client.loadURDF(object_urdf(number), (x, y, OBJECTS.drop_z))
+        for _ in range(2500):
+            client.stepSimulation()
+    seconds = (time.perf_counter() - start) / repeats
+    client.disconnect()
+    return seconds

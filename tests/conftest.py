@@ -1,0 +1,65 @@
+"""Shared fixtures of the environment tests.
+
+Every environment here uses ``renderer="tiny"``: pybullet's EGL plugin allows one EGL world per process, and
+the one test of that policy (``test_env_world.py::test_egl_one_world_per_process``) must find none open. Every
+environment made through these fixtures is closed at teardown.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+
+import gymnasium
+import numpy as np
+import pytest
+
+import apr  # noqa: F401  (registers the environments)
+
+ACTIVE = "apr/ActiveGrasp-v0"
+PASSIVE = "apr/PassiveGrasp-v0"
+FALLBACK_WARNING = "falls back to TinyRenderer"
+
+MakeEnv = Callable[..., gymnasium.Env]
+
+
+def _factory() -> tuple[MakeEnv, list[gymnasium.Env]]:
+    made: list[gymnasium.Env] = []
+
+    def make(env_id: str = ACTIVE, **kwargs) -> gymnasium.Env:
+        kwargs.setdefault("renderer", "tiny")
+        env = gymnasium.make(env_id, **kwargs)
+        made.append(env)
+        return env
+
+    return make, made
+
+
+@pytest.fixture
+def make_env() -> Iterator[MakeEnv]:
+    """``make_env(env_id=ACTIVE, **kwargs)``: ``gymnasium.make`` with ``renderer="tiny"``, closed at teardown."""
+    make, made = _factory()
+    yield make
+    for env in made:
+        env.close()
+
+
+@pytest.fixture(scope="module")
+def make_module_env() -> Iterator[MakeEnv]:
+    """As ``make_env``, for environments shared by the tests of one module (each test resets what it uses)."""
+    make, made = _factory()
+    yield make
+    for env in made:
+        env.close()
+
+
+def assert_obs_equal(first: dict, second: dict, where: str = "") -> None:
+    """Two observations are identical, key by key (exact, dtype included)."""
+    assert first.keys() == second.keys(), where
+    for key in first:
+        a, b = np.asarray(first[key]), np.asarray(second[key])
+        assert a.dtype == b.dtype, f"{where} {key}: {a.dtype} != {b.dtype}"
+        assert np.array_equal(a, b), f"{where} {key}: max abs diff {np.abs(a.astype(float) - b).max()}"
+
+
+def obs_differ(first: dict, second: dict) -> bool:
+    return any(not np.array_equal(np.asarray(first[k]), np.asarray(second[k])) for k in first)

@@ -1,0 +1,153 @@
+"""The grasping world: the object split, where the head looks, what the cameras see, the EGL policy."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pybullet as p
+import pytest
+from conftest import ACTIVE, PASSIVE
+
+import apr
+from apr.envs.config import CAMERA
+from apr.envs.world import GraspWorld, passive_cameras
+
+CENTRE = slice(126, 130)  # the 4x4 pixels around the centre of a 256x256 render
+
+
+# ------------------------------------------------------------------------------------------------- the split
+def test_split_is_900_train_and_100_test_ending_in_0() -> None:
+    train, test = apr.object_ids("train"), apr.object_ids("test")
+    assert len(train) == 900 and len(test) == 100
+    assert not set(train) & set(test)
+    assert set(train) | set(test) == set(range(1000))
+    assert test == list(range(0, 1000, 10))
+    assert train == sorted(train) and test == sorted(test)
+    assert all(n % 10 != 0 for n in train)
+
+
+@pytest.mark.parametrize("split", ["val", "Train", "", None])
+def test_bad_split_raises_listing_valid_values(split) -> None:
+    with pytest.raises(ValueError, match=r"split must be one of \('train', 'test'\)"):
+        apr.object_ids(split)
+
+
+# ---------------------------------------------------------------------------------------------- the head
+@pytest.fixture(scope="module")
+def active_env(make_module_env):
+    return make_module_env(ACTIVE, dof=4, target="env", foveation="resize")
+
+
+def test_head_line_of_sight_passes_through_the_fixation_point(active_env) -> None:
+    active_env.reset(seed=0)
+    head = active_env.unwrapped.world.head
+    rng = np.random.default_rng(0)
+    points = rng.uniform([0.45, -0.12, -0.17], [0.7, 0.12, -0.1], (20, 3))
+    for point in points:
+        camera, joints = head.look_at(point, rng)
+        assert camera.sight_error(point) < 0.02, point
+        depth = np.dot(point - camera.eye, camera.forward)
+        assert 0.25 < depth < 0.5, f"the point is {depth} m along the line of sight (behind the camera if < 0)"
+        assert abs(np.linalg.norm(camera.forward) - 1.0) < 1e-6
+        assert abs(np.dot(camera.up, camera.forward)) < 1e-6
+        assert camera.up[2] > 0.0, "the image is upside down"
+        np.testing.assert_array_equal(joints, head.joint_angles())  # v is the pose the head holds
+
+
+def test_objects_project_to_the_image_centre(active_env) -> None:
+    world = active_env.unwrapped.world
+    rng = np.random.default_rng(1)
+    hits, total = 0, 0
+    for seed in (0, 1):
+        active_env.reset(seed=seed)
+        for uid in world.object_uids:
+            camera, _ = world.head.look_at(world.object_centre(uid), rng)
+            _, bodies = world.render(camera, segmentation=True)
+            assert bodies.shape == (256, 256) and bodies.dtype == np.int32
+            hits += bool((bodies[CENTRE, CENTRE] == uid).any())
+            total += 1
+    assert hits >= 0.8 * total, f"the object covered the image centre in {hits} of {total} views"
+
+
+def test_target_mask_covers_the_centre_of_each_view(active_env) -> None:
+    hits, total = 0, 0
+    for seed in (2, 3):
+        active_env.reset(seed=seed)
+        for view in active_env.unwrapped.raw_views:
+            mask = view[..., 3]
+            hits += bool((mask[CENTRE, CENTRE] == 255).any())
+            total += 1
+            assert (mask == 255).mean() < 0.5  # a mask of the target, not of everything
+    assert hits >= 0.8 * total, f"the target covered the image centre in {hits} of {total} views"
+
+
+# ----------------------------------------------------------------------------------------- passive cameras
+def _body_and_link_ids(world: GraspWorld, camera) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel body ids and link indices (-1: base) of ``camera``'s view, from pybullet directly."""
+    projection = p.computeProjectionMatrixFOV(camera.fov_deg, 1.0, CAMERA.near, CAMERA.far)
+    size = CAMERA.render_size
+    _, _, _, _, seg = world.client.getCameraImage(
+        size, size, camera.view_matrix(), projection, renderer=p.ER_TINY_RENDERER,
+        flags=p.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX,
+    )  # fmt: skip
+    seg = np.asarray(seg, dtype=np.int64).reshape(size, size)
+    bodies = np.where(seg >= 0, seg & ((1 << 24) - 1), -1)
+    links = np.where(seg >= 0, (seg >> 24) - 1, -2)
+    return bodies, links
+
+
+def test_passive_cameras_see_the_gripper_and_the_tray(make_env) -> None:
+    env = make_env(PASSIVE, dof=4)
+    env.reset(seed=0)
+    world = env.unwrapped.world
+    gripper_links = (7, 8, 9, 10, 11, 12, 13)
+    cameras = passive_cameras()
+    assert len(cameras) == 3
+    for moment in ("reset", "after descending"):
+        if moment != "reset":
+            for _ in range(4):
+                obs, *_ = env.step(np.array([0.0, 0.0, -1.0, 0.0], np.float32))
+            assert obs["gripper"][2] < 0.15  # the gripper is well down toward the tray
+        for i, camera in enumerate(cameras):
+            _, bodies = world.render(camera, segmentation=True)
+            assert (bodies == world.arm.uid).sum() > 100, f"camera {i} at {moment}: no arm"
+            assert (bodies == world.tray_uid).sum() > 1000, f"camera {i} at {moment}: no tray"
+            link_bodies, links = _body_and_link_ids(world, camera)
+            on_gripper = (link_bodies == world.arm.uid) & np.isin(links, gripper_links)
+            assert on_gripper.sum() > 50, f"camera {i} at {moment}: the gripper itself is out of view"
+
+
+# ---------------------------------------------------------------------------------------------- EGL policy
+def test_egl_one_world_per_process() -> None:
+    try:
+        first = GraspWorld("egl", with_head=False)
+    except RuntimeError as error:
+        pytest.skip(f"EGL is not available here: {error}")
+    try:
+        assert first.renderer == "egl"
+        with pytest.raises(RuntimeError, match="already has an EGL world open"):
+            GraspWorld("egl", with_head=False)
+        with pytest.warns(UserWarning, match="falls back to TinyRenderer"):
+            second = GraspWorld("auto", with_head=False)
+        try:
+            assert second.renderer == "tiny"
+            # Both renderers see the same scene the same way up (the EGL image is not flipped or mirrored).
+            camera = passive_cameras()[0]
+            _, egl_bodies = first.render(camera, segmentation=True)
+            _, tiny_bodies = second.render(camera, segmentation=True)
+            assert (egl_bodies == first.arm.uid).sum() > 100
+            assert (egl_bodies == tiny_bodies).mean() > 0.95
+        finally:
+            second.close()
+    finally:
+        first.close()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no fallback now: the first EGL world is closed
+        third = GraspWorld("egl", with_head=False)
+    try:
+        assert third.renderer == "egl"
+        rgb, _ = third.render(passive_cameras()[1])
+        assert rgb.shape == (256, 256, 3) and rgb.std() > 5.0
+    finally:
+        third.close()
