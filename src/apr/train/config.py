@@ -1,0 +1,158 @@
+"""The training configuration and the presets of the paper's Table 1.
+
+A preset is a :class:`TrainConfig`; any field can be overridden on the command line
+(``apr train --preset active-target --seed 1 --model.batch-size 128``). Learning hyperparameters live in
+:class:`apr.model.config.ModelConfig`; this file holds the run: the environment, the experience stream, the
+evaluation and checkpoint schedule.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import tyro
+
+from apr.model.config import ModelConfig
+
+STEPS_PER_GRASP_ESTIMATE = 10
+"""Grasp steps an episode takes on average (a guess for sizing schedules; episodes take 1 to 15)."""
+
+
+@dataclass
+class EnvConfig:
+    """Which environment the workers run (paper, section 4)."""
+
+    env_id: Literal["apr/ActiveGrasp-v0", "apr/PassiveGrasp-v0"] = "apr/ActiveGrasp-v0"
+    """The active model (head camera) or the passive one (three static cameras)."""
+    dof: Literal[4, 6] = 6
+    """Gripper degrees of freedom (paper: 6; 4 for Active-Learned-4D)."""
+    target: Literal["env", "learned"] = "env"
+    """Environment-selected target (section 4A) or learned fixation (section 4B). Passive: always env."""
+    foveation: Literal["logpolar", "resize"] = "logpolar"
+    """Log-polar-like warp or plain resize (the "w/o log-polar" ablation, section 4C). Passive: resize."""
+    renderer: Literal["auto", "egl", "tiny"] = "auto"
+    """EGL when its plugin loads, else TinyRenderer."""
+
+    def make_kwargs(self, split: str) -> dict[str, Any]:
+        """Keyword arguments of ``gymnasium.make(self.env_id, ...)`` for ``split``."""
+        kwargs: dict[str, Any] = {"dof": self.dof, "split": split, "renderer": self.renderer}
+        if self.env_id == "apr/ActiveGrasp-v0":
+            kwargs.update(target=self.target, foveation=self.foveation)
+        return kwargs
+
+    @property
+    def learned_fixation(self) -> bool:
+        return self.env_id == "apr/ActiveGrasp-v0" and self.target == "learned"
+
+    @property
+    def image_channels(self) -> int:
+        return 3 if self.learned_fixation else 4
+
+
+@dataclass
+class TrainConfig:
+    """A training run of APR."""
+
+    preset: Annotated[str, tyro.conf.Suppress] = "active-target"
+    """The preset this configuration started from (it names the run; chosen with ``apr train --preset``)."""
+    env: EnvConfig = field(default_factory=EnvConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
+    seed: int = 0
+    """Seeds the episodes (objects, targets, viewpoints), the warm-up actions and the learner."""
+    total_grasps: int = 70_000
+    """Grasp episodes to run (paper: learning saturates before 70K grasps)."""
+    workers: int = 0
+    """Environment processes; 0 = one per CPU core."""
+    random_grasps: int = 200
+    """Warm-up episodes with uniformly random actions before the policies act (ours; SAC practice)."""
+    updates_per_step: float = 0.25
+    """Learner updates per grasp step collected (the update-to-data ratio; ours, the paper does not say)."""
+    replay_capacity: int = 50_000
+    """Grasp transitions kept in replay (ours; each stores one 3x64x64xC uint8 observation)."""
+    anneal_over_run: bool = True
+    """Scale the GQN schedules (sigma, learning rate) to this run's expected updates instead of the 200K
+    updates of Eslami et al. (SPEC section 4)."""
+    eval_every_grasps: int = 2_000
+    """Evaluate on held-out objects every this many grasps (and at the end)."""
+    eval_episodes: int = 100
+    """Episodes per evaluation (SPEC: at least 100)."""
+    eval_workers: int = 0
+    """Processes for evaluation; 0 = as many as ``workers``."""
+    checkpoint_every_grasps: int = 1_000
+    """Write a checkpoint every this many grasps (and at the end, and on Ctrl-C)."""
+    keep_checkpoints: int = 3
+    """Checkpoints kept; older ones are deleted."""
+    log_every_grasps: int = 100
+    """Write a metrics.csv row and TensorBoard scalars every this many grasps."""
+    image_every_grasps: int = 2_000
+    """Log views and GQN predictions to TensorBoard every this many grasps."""
+    runs_dir: Path = Path("runs")
+    """Parent folder of run folders."""
+    run_name: str = ""
+    """Run folder name; empty = PRESET__sSEED__YYYYmmdd-HHMMSS."""
+
+    def resolved(self) -> TrainConfig:
+        """A copy with the fields that follow from others filled in (what a run saves and uses)."""
+        model = self.model.replace(
+            image_channels=self.env.image_channels,
+            grasp_action_dim=self.env.dof,
+            seed=self.seed,
+        )
+        if self.anneal_over_run:
+            expected = self.total_grasps * STEPS_PER_GRASP_ESTIMATE * self.updates_per_step
+            model = model.replace(gqn_anneal_updates=max(int(expected), 1))
+        workers = self.workers or os.cpu_count() or 1
+        return dataclasses.replace(self, model=model, workers=workers, eval_workers=self.eval_workers or workers)
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), indent=2, default=str)
+
+    @classmethod
+    def from_json(cls, text: str) -> TrainConfig:
+        data = json.loads(text)
+        model = data.pop("model")
+        model["head_channels"] = tuple(model["head_channels"])
+        return cls(env=EnvConfig(**data.pop("env")), model=ModelConfig(**model), runs_dir=Path(data.pop("runs_dir")),
+                   **data)  # fmt: skip
+
+
+def _preset(name: str, description: str, **changes: Any) -> tuple[str, tuple[str, TrainConfig]]:
+    env = EnvConfig(**changes.pop("env", {}))
+    model = changes.pop("model", ModelConfig())
+    return name, (description, TrainConfig(preset=name, env=env, model=model, **changes))
+
+
+PRESETS: dict[str, tuple[str, TrainConfig]] = dict(
+    [
+        _preset("active-target", "head camera fixating the env's target, 6-DoF, log-polar, GQN (Table 1: 84%)"),
+        _preset("passive-target", "three static cameras, 6-DoF, no log-polar, GQN (Table 1: 76%)",
+                env=dict(env_id="apr/PassiveGrasp-v0", foveation="resize")),
+        _preset("active-target-no-logpolar", "active-target with a plain resize instead of the warp (Table 1: 79%)",
+                env=dict(foveation="resize")),
+        _preset("active-target-no-representation",
+                "active-target without the generator; RL trains the encoder (paper: negligible improvement)",
+                model=ModelConfig(representation=False)),
+        _preset("active-learned-6d", "the full APR: learned fixation, 6-DoF (Table 1: 85% after 70K grasps)",
+                env=dict(target="learned")),
+        _preset("active-learned-4d", "learned fixation, 4-DoF (Table 1: 85% after 25K grasps)",
+                env=dict(target="learned", dof=4), total_grasps=25_000),
+        _preset("smoke", "tiny sizes, a few grasps: the whole pipeline in about a minute on a CPU",
+                env=dict(target="learned", dof=4), model=ModelConfig.tiny(),
+                total_grasps=8, workers=2, random_grasps=2, updates_per_step=0.25, replay_capacity=2_000,
+                eval_every_grasps=4, eval_episodes=2, checkpoint_every_grasps=4, log_every_grasps=2,
+                image_every_grasps=4),
+    ]
+)  # fmt: skip
+
+
+def preset(name: str) -> TrainConfig:
+    """A fresh copy of the preset ``name``."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r}; the presets are: {', '.join(PRESETS)}")
+    return copy.deepcopy(PRESETS[name][1])

@@ -1,0 +1,129 @@
+"""Rounds of episodes: every worker runs one episode, in lockstep, with actions from one batched forward pass.
+
+Between sending actions and receiving the next observations the workers simulate in their processes, and a
+``while_waiting`` hook lets the learner update meanwhile. Rounds make a run reproducible whatever the number
+of workers: episode ``k`` of a run always gets the seed ``episode_seed(seed, k)``, and a run resumed at a
+round boundary continues exactly.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+
+from apr.train.workers import EnvWorkers, StepResult, WorkerFailure
+
+Policy = Callable[[dict[str, np.ndarray], str], np.ndarray]
+"""(batched observations, "grasp" or "fixation") -> actions (N, A) in [-1, 1]."""
+
+
+def episode_seed(run_seed: int, episode: int) -> int:
+    """The environment seed of the run's ``episode``-th episode."""
+    return int(np.random.SeedSequence([run_seed, episode]).generate_state(1)[0])
+
+
+@dataclass
+class EpisodeResult:
+    """How one episode ended."""
+
+    seed: int
+    grasp_steps: int = 0
+    attempted: bool = False
+    success: bool = False
+    reach_return: float = 0.0
+    lost: str = ""
+    """Why the episode was lost (its worker died), or empty."""
+    fixation_point: np.ndarray | None = None
+
+
+class Recorder(Protocol):
+    """What the trainer does with experience (evaluation records nothing)."""
+
+    def on_reset(self, worker: int, observation: dict) -> None: ...
+
+    def on_fixation(self, worker: int, action: np.ndarray, observation: dict) -> None: ...
+
+    def on_step(self, worker: int, action: np.ndarray, result: StepResult) -> None: ...
+
+    def on_end(self, worker: int, result: EpisodeResult) -> None: ...
+
+
+def stack(observations: list[dict[str, Any]]) -> dict[str, np.ndarray]:
+    """Batch a list of observation dicts (the keys the model reads)."""
+    return {key: np.stack([o[key] for o in observations]) for key in ("images", "viewpoints", "gripper")}
+
+
+def run_round(
+    workers: EnvWorkers,
+    seeds: list[int],
+    policy: Policy,
+    dof: int,
+    learned_fixation: bool,
+    recorder: Recorder | None = None,
+    while_waiting: Callable[[int], None] | None = None,
+) -> list[EpisodeResult]:
+    """Run one episode on each of the first ``len(seeds)`` workers; return how each ended.
+
+    Args:
+        dof: the grasp action size (the learned-fixation env takes a Dict action with both entries).
+        while_waiting: called with the number of workers stepping, while they step.
+    """
+    results = [EpisodeResult(seed=seed) for seed in seeds]
+    observations: dict[int, dict] = {}
+    for worker, seed in enumerate(seeds):
+        workers.send_reset(worker, seed)
+    for worker in range(len(seeds)):
+        answer = workers.receive(worker)
+        if isinstance(answer, WorkerFailure):
+            results[worker].lost = answer.reason
+            continue
+        observations[worker] = answer[0]
+        if recorder:
+            recorder.on_reset(worker, answer[0])
+
+    def step_all(phase: str) -> dict[int, StepResult]:
+        active = sorted(observations)
+        actions = policy(stack([observations[w] for w in active]), phase)
+        for worker, action in zip(active, actions, strict=True):
+            if learned_fixation:
+                fixation = action if phase == "fixation" else np.zeros(3, np.float32)
+                grasp = action if phase == "grasp" else np.zeros(dof, np.float32)
+                workers.send_step(worker, {"fixation": fixation, "grasp": grasp})
+            else:
+                workers.send_step(worker, action)
+        if while_waiting:
+            while_waiting(len(active))
+        answers = {}
+        for worker, action in zip(active, actions, strict=True):
+            answer = workers.receive(worker)
+            if isinstance(answer, WorkerFailure):
+                results[worker].lost = answer.reason
+                del observations[worker]
+                continue
+            answers[worker] = answer
+            if recorder:
+                if phase == "fixation":
+                    recorder.on_fixation(worker, action, answer.observation)
+                else:
+                    recorder.on_step(worker, action, answer)
+            observations[worker] = answer.observation
+        return answers
+
+    if learned_fixation and observations:
+        for worker, answer in step_all("fixation").items():
+            results[worker].fixation_point = answer.info["fixation_point"]
+    while observations:
+        for worker, answer in step_all("grasp").items():
+            result, info = results[worker], answer.info
+            result.grasp_steps = info["grasp_steps"]
+            result.reach_return += info["reach_reward"]
+            if answer.terminated or answer.truncated:
+                result.attempted, result.success = info["grasp_attempted"], info["grasp_success"]
+                result.fixation_point = info["fixation_point"]
+                del observations[worker]
+                if recorder:
+                    recorder.on_end(worker, result)
+    return results

@@ -1,0 +1,379 @@
+"""Training APR end to end: env workers, replay, the joint learner, logging, evaluation, checkpoints.
+
+The loop, one round at a time:
+  1. every worker runs one episode (glimpse, then grasp steps) with actions from one batched forward pass;
+  2. while the workers simulate, the learner makes ``updates_per_step`` joint updates per step collected
+     (ELBO + grasp SAC + fixation SAC, from the same replay);
+  3. between rounds: metrics.csv and TensorBoard, evaluation on held-out objects, checkpoints.
+
+A run folder holds ``config.json`` (the resolved configuration), ``metrics.csv``, ``eval/``, ``checkpoints/``
+and ``tb/`` (TensorBoard). ``train(config, resume=run_dir)`` continues a run exactly where its last
+checkpoint left it.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import signal
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from apr.model.agent import APRAgent, FixationBatch, GraspBatch, Observation
+from apr.train.config import TrainConfig
+from apr.train.evaluation import evaluate
+from apr.train.replay import ReplayBuffer, ReplaySpec
+from apr.train.rollout import EpisodeResult, episode_seed, run_round
+from apr.train.workers import EnvWorkers, StepResult
+
+METRICS_COLUMNS = (
+    "grasps", "env_steps", "updates", "wall_s", "train_success", "eval_success", "eval_ci_low", "eval_ci_high",
+    "attempt_rate", "reach_return", "lost_episodes", "grasps_per_min",
+)  # fmt: skip
+RECENT_EPISODES = 100
+"""Training success is the share of the last this many episodes."""
+
+
+@dataclass
+class Progress:
+    """Counters of a run; saved in every checkpoint."""
+
+    grasps: int = 0
+    """Episodes finished (each ends with a grasp attempt or after 15 steps)."""
+    env_steps: int = 0
+    updates: int = 0
+    episodes_started: int = 0
+    lost_episodes: int = 0
+    wall_s: float = 0.0
+    update_debt: float = 0.0
+    """Updates owed to the update-to-data ratio and not made yet."""
+    recent: list[list[float]] = field(default_factory=list)
+    """(success, attempted, reach return) of the last episodes."""
+    loss_sums: dict[str, float] = field(default_factory=dict)
+    loss_count: int = 0
+
+
+def make_run_dir(config: TrainConfig) -> Path:
+    name = config.run_name or f"{config.preset}__s{config.seed}__{time.strftime('%Y%m%d-%H%M%S')}"
+    run_dir = config.runs_dir / name
+    run_dir.mkdir(parents=True, exist_ok=False)
+    return run_dir
+
+
+def available_memory_bytes() -> int | None:
+    """MemAvailable from /proc/meminfo (Linux), or None where it cannot be read."""
+    try:
+        with open("/proc/meminfo") as file:
+            for line in file:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
+
+
+class Trainer:
+    """One run. ``Trainer(config).train()`` starts it; ``Trainer.resume(run_dir).train()`` continues it."""
+
+    def __init__(self, config: TrainConfig, run_dir: Path | None = None):
+        self.config = config = config.resolved()
+        self.run_dir = run_dir or make_run_dir(config)
+        (self.run_dir / "config.json").write_text(config.to_json())
+        for sub in ("checkpoints", "eval"):
+            (self.run_dir / sub).mkdir(exist_ok=True)
+
+        spec = ReplaySpec(
+            image_shape=(3, config.model.image_size, config.model.image_size, config.env.image_channels),
+            viewpoint_shape=(3, config.model.viewpoint_dim), gripper_dim=config.model.gripper_dim,
+            grasp_action_dim=config.env.dof,
+        )  # fmt: skip
+        need = ReplayBuffer.bytes_needed(config.replay_capacity, spec)
+        have = available_memory_bytes()
+        print(f"replay: {config.replay_capacity:,} transitions, {need / 2**30:.2f} GiB"
+              + (f" of {have / 2**30:.1f} GiB available" if have else ""))  # fmt: skip
+        if have is not None and need > 0.8 * have:
+            raise SystemExit(
+                f"the replay buffer needs {need / 2**30:.1f} GiB but only {have / 2**30:.1f} GiB is available: "
+                f"lower --replay-capacity (now {config.replay_capacity:,})"
+            )
+        self.replay = ReplayBuffer(config.replay_capacity, spec)
+        self.agent = APRAgent(config.model)
+        self.rng = np.random.default_rng(config.seed)
+        self.progress = Progress()
+        self._recorder = _Recorder(self.replay)
+        self._stop_requested = False
+
+    @staticmethod
+    def saved_config(run_dir: Path) -> TrainConfig:
+        """The resolved configuration a run folder was started with."""
+        path = run_dir / "config.json"
+        if not path.exists():
+            raise SystemExit(f"{run_dir} is not a run folder (no config.json)")
+        return TrainConfig.from_json(path.read_text())
+
+    @classmethod
+    def resume(cls, run_dir: Path, config: TrainConfig | None = None) -> Trainer:
+        """Continue the run in ``run_dir`` from its latest checkpoint (``config``: the saved one, or a changed
+        copy of it, e.g. with more ``total_grasps``)."""
+        trainer = cls(config or cls.saved_config(run_dir), run_dir=run_dir)
+        checkpoint = latest_checkpoint(run_dir)
+        if checkpoint is None:
+            raise SystemExit(f"{run_dir} has no checkpoint to resume from")
+        state = torch.load(checkpoint, map_location=trainer.agent.device, weights_only=False)
+        trainer.agent.load_state_dict(state["agent"])
+        trainer.progress = Progress(**state["progress"])
+        trainer.rng.bit_generator.state = state["rng"]
+        trainer.replay.load(run_dir / "checkpoints" / state["replay"])
+        _truncate_metrics(run_dir / "metrics.csv", trainer.progress.grasps)
+        print(f"resumed {run_dir} at {trainer.progress.grasps} grasps from {checkpoint.name}")
+        return trainer
+
+    # ------------------------------------------------------------------------------------------------ loop
+    def train(self) -> Path:
+        config, progress = self.config, self.progress
+        env = config.env
+        from torch.utils.tensorboard import SummaryWriter
+
+        self.writer = SummaryWriter(str(self.run_dir / "tb"))
+        workers = EnvWorkers(config.workers, env.env_id, env.make_kwargs("train"))
+        previous_handler = signal.signal(signal.SIGINT, self._request_stop)
+        started = time.perf_counter() - progress.wall_s
+        bar = tqdm(total=config.total_grasps, initial=progress.grasps, unit="grasp", dynamic_ncols=True)
+        try:
+            while progress.grasps < config.total_grasps and not self._stop_requested:
+                before = progress.grasps
+                count = min(len(workers), config.total_grasps - progress.grasps)
+                seeds = [episode_seed(config.seed, progress.episodes_started + k) for k in range(count)]
+                progress.episodes_started += count
+                results = run_round(workers, seeds, self._policy, env.dof, env.learned_fixation,
+                                    self._recorder, self._learn)  # fmt: skip
+                self._count(results)
+                progress.wall_s = time.perf_counter() - started
+                bar.update(progress.grasps - before)
+                bar.set_postfix(self._postfix(), refresh=False)
+                if progress.grasps < config.total_grasps:
+                    self._between_rounds(before)
+            if progress.grasps >= config.total_grasps:  # the end: a last evaluation, row and pictures
+                self._log(self._evaluate())
+                self._log_images()
+            self._checkpoint()
+            if self._stop_requested:
+                print(f"\nstopped at {progress.grasps} grasps; resume with: apr train --resume {self.run_dir}")
+        finally:
+            signal.signal(signal.SIGINT, previous_handler)
+            bar.close()
+            workers.close()
+            self.writer.close()
+        return self.run_dir
+
+    def _request_stop(self, signum: int, frame: Any) -> None:
+        print("\nCtrl-C: finishing this round, then saving a checkpoint (Ctrl-C again to quit at once)")
+        self._stop_requested = True
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+    def _policy(self, observations: dict[str, np.ndarray], phase: str) -> np.ndarray:
+        """Uniform random actions during warm-up, then samples of the stochastic policies."""
+        batch = len(observations["images"])
+        if self.progress.grasps < self.config.random_grasps:
+            size = 3 if phase == "fixation" else self.config.env.dof
+            return self.rng.uniform(-1.0, 1.0, (batch, size)).astype(np.float32)
+        return self.agent.act(observations, deterministic=False, policy=phase)
+
+    def _learn(self, steps: int) -> None:
+        """The learner's share of ``steps`` grasp steps: ``updates_per_step`` joint updates each."""
+        config, progress = self.config, self.progress
+        progress.update_debt += config.updates_per_step * steps
+        warmed_up = progress.grasps >= config.random_grasps
+        ready = warmed_up and self.replay.num_transitions() >= config.model.batch_size
+        while ready and progress.update_debt >= 1.0:
+            metrics = self.agent.update(*self._sample_batches(), step=progress.updates)
+            progress.updates += 1
+            progress.update_debt -= 1.0
+            progress.loss_count += 1
+            for name, value in metrics.items():
+                progress.loss_sums[name] = progress.loss_sums.get(name, 0.0) + value
+        if not ready:
+            progress.update_debt = 0.0  # no debt builds up during warm-up
+
+    def _sample_batches(self) -> tuple[GraspBatch, FixationBatch | None]:
+        device, model = self.agent.device, self.config.model
+        grasp = self.replay.sample_grasp(model.batch_size, self.rng)
+        grasp_batch = GraspBatch(
+            obs=Observation.from_env(grasp["obs"], device),
+            action=torch.from_numpy(grasp["action"]).to(device),
+            reward=torch.from_numpy(grasp["reward"]).to(device),
+            next_obs=Observation.from_env(grasp["next_obs"], device),
+            terminated=torch.from_numpy(grasp["terminated"]).to(device),
+        )
+        if not self.config.env.learned_fixation or self.replay.num_fixations() == 0:
+            return grasp_batch, None
+        fixation = self.replay.sample_fixation(model.fixation_batch_size, self.rng)
+        return grasp_batch, FixationBatch(
+            obs=Observation.from_env(fixation["obs"], device),
+            action=torch.from_numpy(fixation["action"]).to(device),
+            reward=torch.from_numpy(fixation["reward"]).to(device),
+        )
+
+    def _count(self, results: list[EpisodeResult]) -> None:
+        progress = self.progress
+        for result in results:
+            if result.lost:
+                progress.lost_episodes += 1
+                tqdm.write(f"episode with seed {result.seed} lost: {result.lost} (worker restarted)")
+                continue
+            progress.grasps += 1
+            progress.env_steps += result.grasp_steps
+            progress.recent.append([float(result.success), float(result.attempted), result.reach_return])
+        progress.recent = progress.recent[-RECENT_EPISODES:]
+
+    def _postfix(self) -> dict[str, str]:
+        recent = np.array(self.progress.recent or [[0.0, 0.0, 0.0]])
+        per_minute = 60 * self.progress.grasps / max(self.progress.wall_s, 1e-9)
+        return {"success": f"{recent[:, 0].mean():.0%}", "grasps/min": f"{per_minute:.1f}",
+                "updates": str(self.progress.updates)}  # fmt: skip
+
+    # ----------------------------------------------------------------------------------- between rounds
+    def _between_rounds(self, grasps_before: int) -> None:
+        config, grasps = self.config, self.progress.grasps
+
+        def crossed(every: int) -> bool:
+            return every > 0 and grasps // every > grasps_before // every
+
+        evaluation = self._evaluate() if crossed(config.eval_every_grasps) else None
+        if crossed(config.log_every_grasps) or evaluation is not None:
+            self._log(evaluation)
+        if crossed(config.image_every_grasps):
+            self._log_images()
+        if crossed(config.checkpoint_every_grasps):
+            self._checkpoint()
+
+    def _evaluate(self) -> dict:
+        config = self.config
+        result = evaluate(self.agent, config.env, config.eval_episodes, "test", config.eval_workers).to_dict()
+        result["grasps"] = self.progress.grasps
+        path = self.run_dir / "eval" / f"eval_{self.progress.grasps:08d}.json"
+        path.write_text(json.dumps(result, indent=2))
+        interval = f"95% CI {result['ci_low']:.1%}-{result['ci_high']:.1%}"
+        tqdm.write(f"eval at {self.progress.grasps} grasps: {result['success_rate']:.1%} ({interval}, "
+                   f"{result['episodes']} episodes)")  # fmt: skip
+        return result
+
+    def _log(self, evaluation: dict | None) -> None:
+        progress = self.progress
+        recent = np.array(progress.recent or [[math.nan] * 3])
+        row = {
+            "grasps": progress.grasps, "env_steps": progress.env_steps, "updates": progress.updates,
+            "wall_s": round(progress.wall_s, 2), "train_success": recent[:, 0].mean(),
+            "eval_success": evaluation["success_rate"] if evaluation else "",
+            "eval_ci_low": evaluation["ci_low"] if evaluation else "",
+            "eval_ci_high": evaluation["ci_high"] if evaluation else "",
+            "attempt_rate": recent[:, 1].mean(), "reach_return": recent[:, 2].mean(),
+            "lost_episodes": progress.lost_episodes,
+            "grasps_per_min": round(60 * progress.grasps / max(progress.wall_s, 1e-9), 2),
+        }  # fmt: skip
+        path = self.run_dir / "metrics.csv"
+        new = not path.exists()
+        with open(path, "a", newline="") as file:
+            writer = csv.DictWriter(file, fieldnames=METRICS_COLUMNS)
+            if new:
+                writer.writeheader()
+            writer.writerow(row)
+        for name, value in row.items():
+            if value != "" and name != "grasps":
+                self.writer.add_scalar(f"run/{name}", float(value), progress.grasps)
+        for name, total in progress.loss_sums.items():
+            self.writer.add_scalar(name, total / max(progress.loss_count, 1), progress.grasps)
+        progress.loss_sums, progress.loss_count = {}, 0
+
+    def _log_images(self) -> None:
+        """The last stored observation's three views and, with a generator, its prediction of view 2."""
+        frames = self.replay.frames
+        if frames.writes == 0:
+            return
+        slot = (frames.writes - 1) % frames.capacity
+        observation = frames.batch(np.array([slot]))
+        views = torch.from_numpy(observation["images"][0][..., :3]).permute(0, 3, 1, 2)
+        self.writer.add_images("views", views, self.progress.grasps)
+        if self.agent.generator is not None:
+            predicted = self.agent.predict_view(observation, query_view=2)[0][..., :3]
+            pair = np.stack([observation["images"][0, 2, ..., :3] / 255.0, np.clip(predicted, 0, 1)])
+            self.writer.add_images("gqn/truth_vs_prediction", torch.from_numpy(pair).permute(0, 3, 1, 2),
+                                   self.progress.grasps)  # fmt: skip
+
+    # ------------------------------------------------------------------------------------------ checkpoints
+    def _checkpoint(self) -> Path:
+        """Write the replay, then the checkpoint that names it, each atomically; prune old ones."""
+        directory = self.run_dir / "checkpoints"
+        grasps = self.progress.grasps
+        replay_name = f"replay_{grasps:08d}.npz"
+        self.replay.save(directory / replay_name)
+        state = {
+            "agent": self.agent.state_dict(),
+            "progress": dataclasses.asdict(self.progress),
+            "rng": self.rng.bit_generator.state,
+            "replay": replay_name,
+            "config": self.config.to_json(),
+        }
+        path = directory / f"checkpoint_{grasps:08d}.pt"
+        temporary = path.with_name(path.name + ".tmp")
+        torch.save(state, temporary)
+        temporary.replace(path)
+        for old in sorted(directory.glob("checkpoint_*.pt"))[: -self.config.keep_checkpoints]:
+            old.unlink()
+        for old in directory.glob("replay_*.npz"):
+            if old.name != replay_name:
+                old.unlink()
+        return path
+
+
+class _Recorder:
+    """Turns worker answers into replay entries: frames, grasp transitions, and fixation samples."""
+
+    def __init__(self, replay: ReplayBuffer):
+        self.replay = replay
+        self.last_frame: dict[int, tuple[int, int]] = {}
+        self.fixation: dict[int, tuple[tuple[int, int], np.ndarray]] = {}
+
+    def on_reset(self, worker: int, observation: dict) -> None:
+        self.last_frame[worker] = self.replay.add_frame(observation)
+        self.fixation.pop(worker, None)
+
+    def on_fixation(self, worker: int, action: np.ndarray, observation: dict) -> None:
+        self.fixation[worker] = (self.last_frame[worker], action)
+        self.last_frame[worker] = self.replay.add_frame(observation)
+
+    def on_step(self, worker: int, action: np.ndarray, result: StepResult) -> None:
+        next_frame = self.replay.add_frame(result.observation)
+        self.replay.add_transition(self.last_frame[worker], action, result.reward, next_frame, result.terminated)
+        self.last_frame[worker] = next_frame
+
+    def on_end(self, worker: int, result: EpisodeResult) -> None:
+        if worker in self.fixation:  # the bandit's reward: the episode's sparse grasp reward only
+            frame, action = self.fixation.pop(worker)
+            self.replay.add_fixation(frame, action, float(result.success))
+
+
+def latest_checkpoint(run_dir: Path) -> Path | None:
+    checkpoints = sorted((run_dir / "checkpoints").glob("checkpoint_*.pt"))
+    return checkpoints[-1] if checkpoints else None
+
+
+def _truncate_metrics(path: Path, grasps: int) -> None:
+    """Drop metrics rows written after the checkpoint a run resumes from."""
+    if not path.exists():
+        return
+    with open(path, newline="") as file:
+        rows = list(csv.DictReader(file))
+    with open(path, "w", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=METRICS_COLUMNS)
+        writer.writeheader()
+        writer.writerows(row for row in rows if int(row["grasps"]) <= grasps)
+

@@ -1,0 +1,157 @@
+"""Environment workers: one process and one physics client per environment, restarted when one dies.
+
+Gymnasium's ``AsyncVectorEnv`` stops the whole vector when a worker fails; a long training run must instead
+replace the worker, count the episode it lost, and go on. So the pool is ours, and small: each worker owns
+one environment and answers ``reset(seed)`` and ``step(action)`` over a pipe.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing
+import signal
+from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
+from typing import Any
+
+import gymnasium as gym
+
+MAX_FAILURES_IN_A_ROW = 5
+"""A worker that fails this many times without one good answer between stops the run: it is not bad luck."""
+
+
+@dataclass
+class StepResult:
+    observation: dict[str, Any]
+    reward: float
+    terminated: bool
+    truncated: bool
+    info: dict[str, Any]
+
+
+@dataclass
+class WorkerFailure:
+    """A worker died or raised; it has been replaced, and its episode is lost."""
+
+    worker: int
+    reason: str
+
+
+@dataclass
+class _Worker:
+    process: multiprocessing.process.BaseProcess
+    connection: Connection
+    pending: str | None = None
+    """The command whose answer has not been received yet."""
+    failures_in_a_row: int = field(default=0)
+
+
+def _serve(connection: Connection, env_id: str, env_kwargs: dict[str, Any]) -> None:
+    """The worker's loop: build the env, then answer commands until told to close."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the trainer's to handle
+    import apr  # noqa: F401  (registers the environments in this process)
+
+    env = gym.make(env_id, **env_kwargs)
+    try:
+        while True:
+            command, payload = connection.recv()
+            if command == "close":
+                break
+            try:
+                if command == "reset":
+                    observation, info = env.reset(seed=payload)
+                    connection.send(("ok", (observation, info)))
+                elif command == "step":
+                    connection.send(("ok", env.step(payload)))
+                else:
+                    raise ValueError(f"unknown command {command!r}")
+            except Exception as error:  # a physics or env error: report it, then let the pool replace us
+                connection.send(("error", f"{type(error).__name__}: {error}"))
+                break
+    finally:
+        env.close()
+        connection.close()
+
+
+class EnvWorkers:
+    """``num_workers`` environments, each in its own process.
+
+    Calls are asynchronous: ``send_reset``/``send_step`` post a command to one worker, ``receive`` collects its
+    answer. A worker that died or raised is restarted (a fresh process and environment) and ``receive``
+    returns a :class:`WorkerFailure` instead of a result.
+    """
+
+    def __init__(self, num_workers: int, env_id: str, env_kwargs: dict[str, Any]):
+        if num_workers < 1:
+            raise ValueError(f"num_workers must be at least 1, got {num_workers}")
+        self.env_id, self.env_kwargs = env_id, dict(env_kwargs)
+        self._context = multiprocessing.get_context("spawn")
+        self._workers = [self._start() for _ in range(num_workers)]
+        self.failures = 0
+
+    def __len__(self) -> int:
+        return len(self._workers)
+
+    def _start(self) -> _Worker:
+        parent, child = self._context.Pipe()
+        process = self._context.Process(target=_serve, args=(child, self.env_id, self.env_kwargs), daemon=True)
+        process.start()
+        child.close()
+        return _Worker(process, parent)
+
+    def pid(self, index: int) -> int | None:
+        return self._workers[index].process.pid
+
+    def send_reset(self, index: int, seed: int) -> None:
+        self._send(index, ("reset", seed))
+
+    def send_step(self, index: int, action: Any) -> None:
+        self._send(index, ("step", action))
+
+    def _send(self, index: int, message: tuple) -> None:
+        self._workers[index].pending = message[0]
+        with contextlib.suppress(BrokenPipeError, ConnectionResetError, EOFError, OSError):
+            self._workers[index].connection.send(message)  # if it died, ``receive`` reports and replaces it
+
+    def receive(self, index: int) -> tuple[dict, dict] | StepResult | WorkerFailure:
+        """The answer of worker ``index``: (observation, info) after a reset, a StepResult after a step."""
+        worker = self._workers[index]
+        try:
+            status, payload = worker.connection.recv()
+        except (EOFError, ConnectionResetError, OSError):
+            status, payload = "error", f"the worker process exited (code {worker.process.exitcode})"
+        command, worker.pending = worker.pending, None
+        if status == "ok":
+            worker.failures_in_a_row = 0
+            return StepResult(*payload) if command == "step" else payload
+        if worker.failures_in_a_row + 1 >= MAX_FAILURES_IN_A_ROW:
+            raise RuntimeError(f"worker {index} failed {MAX_FAILURES_IN_A_ROW} times in a row; last: {payload}")
+        self._replace(index)
+        return WorkerFailure(index, payload)
+
+    def _replace(self, index: int) -> None:
+        old = self._workers[index]
+        old.connection.close()
+        old.process.join(timeout=5)
+        if old.process.is_alive():
+            old.process.kill()
+        self._workers[index] = self._start()
+        self._workers[index].failures_in_a_row = old.failures_in_a_row + 1
+        self.failures += 1
+
+    def close(self) -> None:
+        for worker in self._workers:
+            with contextlib.suppress(BrokenPipeError, OSError):
+                worker.connection.send(("close", None))
+        for worker in self._workers:
+            worker.process.join(timeout=10)
+            if worker.process.is_alive():
+                worker.process.kill()
+            worker.connection.close()
+        self._workers = []
+
+    def __enter__(self) -> EnvWorkers:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

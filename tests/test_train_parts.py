@@ -1,0 +1,157 @@
+"""The training machinery in isolation: replay, statistics, configuration, presets, workers."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import signal
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from apr.train.config import PRESETS, TrainConfig, preset
+from apr.train.evaluation import wilson_interval
+from apr.train.replay import ReplayBuffer, ReplaySpec
+from apr.train.rollout import episode_seed
+from apr.train.workers import EnvWorkers, StepResult, WorkerFailure
+
+SPEC = ReplaySpec(image_shape=(3, 8, 8, 4), viewpoint_shape=(3, 6), gripper_dim=9, grasp_action_dim=4)
+
+
+def observation(value: int) -> dict[str, np.ndarray]:
+    return {
+        "images": np.full(SPEC.image_shape, value % 256, np.uint8),
+        "viewpoints": np.full(SPEC.viewpoint_shape, value, np.float32),
+        "gripper": np.full(9, value, np.float32),
+    }
+
+
+def fill_episode(replay: ReplayBuffer, start: int, steps: int) -> None:
+    """An episode whose frame k holds the value start + k; transition k's reward is start + k."""
+    frame = replay.add_frame(observation(start))
+    for k in range(steps):
+        next_frame = replay.add_frame(observation(start + k + 1))
+        replay.add_transition(frame, np.full(4, start + k, np.float32), start + k, next_frame, k == steps - 1)
+        frame = next_frame
+
+
+def test_replay_transitions_point_at_their_own_frames():
+    replay = ReplayBuffer(100, SPEC)
+    fill_episode(replay, 0, 5)
+    fill_episode(replay, 50, 3)
+    batch = replay.sample_grasp(64, np.random.default_rng(0))
+    reward = batch["reward"]
+    # obs holds the value of the step's start, next_obs the value one later, whatever the episode
+    np.testing.assert_array_equal(batch["obs"]["gripper"][:, 0], reward)
+    np.testing.assert_array_equal(batch["next_obs"]["gripper"][:, 0], reward + 1)
+    np.testing.assert_array_equal(batch["obs"]["images"][:, 0, 0, 0, 0], reward.astype(np.uint8))
+    assert set(reward) <= {0, 1, 2, 3, 4, 50, 51, 52}
+    assert batch["terminated"][reward == 4].all() and not batch["terminated"][reward == 3].any()
+    assert batch["obs"]["images"].dtype == np.uint8
+
+
+def test_replay_never_samples_overwritten_frames():
+    replay = ReplayBuffer(8, SPEC)  # 12 frames, 8 transitions
+    for episode in range(10):
+        fill_episode(replay, 100 * episode, 3)
+    valid = replay.num_transitions()
+    assert 0 < valid <= 8
+    batch = replay.sample_grasp(256, np.random.default_rng(1))
+    np.testing.assert_array_equal(batch["obs"]["gripper"][:, 0], batch["reward"])
+    np.testing.assert_array_equal(batch["next_obs"]["gripper"][:, 0], batch["reward"] + 1)
+    assert batch["reward"].min() >= 700  # only the newest episodes survive
+
+
+def test_replay_fixation_samples_and_save_load_round_trip(tmp_path: Path):
+    replay = ReplayBuffer(20, SPEC)
+    start = replay.add_frame(observation(7))
+    replay.add_fixation(start, np.array([0.1, 0.2, 0.3], np.float32), 1.0)
+    fill_episode(replay, 10, 4)
+    path = tmp_path / "replay.npz"
+    replay.save(path)
+    restored = ReplayBuffer(20, SPEC)
+    restored.load(path)
+    for name, array in replay.state().items():
+        np.testing.assert_array_equal(restored.state()[name], array, err_msg=name)
+    fixation = restored.sample_fixation(4, np.random.default_rng(0))
+    np.testing.assert_array_equal(fixation["obs"]["gripper"][:, 0], 7)
+    np.testing.assert_allclose(fixation["action"], [[0.1, 0.2, 0.3]] * 4)
+    assert not (tmp_path / "replay.npz.tmp").exists()
+
+
+def test_replay_bytes_needed_matches_what_it_allocates():
+    replay = ReplayBuffer(1000, SPEC)
+    owners = (vars(replay), vars(replay.frames))
+    allocated = sum(value.nbytes for owner in owners for value in owner.values() if isinstance(value, np.ndarray))
+    assert abs(allocated - ReplayBuffer.bytes_needed(1000, SPEC)) / allocated < 0.01
+
+
+def test_wilson_interval_known_values():
+    low, high = wilson_interval(84, 100)
+    # by hand: centre 0.8274, half-width 0.0716
+    assert low == pytest.approx(0.7557, abs=1e-3) and high == pytest.approx(0.8990, abs=1e-3)
+    assert wilson_interval(0, 10)[0] == 0.0 and wilson_interval(0, 10)[1] == pytest.approx(0.2775, abs=1e-3)
+    assert wilson_interval(10, 10) == pytest.approx((0.7225, 1.0), abs=1e-3)
+
+
+def test_episode_seeds_are_reproducible_and_distinct():
+    seeds = [episode_seed(0, k) for k in range(1000)]
+    assert seeds == [episode_seed(0, k) for k in range(1000)]
+    assert len(set(seeds)) == 1000
+    assert episode_seed(1, 0) != episode_seed(0, 0)
+
+
+@pytest.mark.parametrize("name", list(PRESETS))
+def test_presets_resolve_consistently_and_round_trip(name: str):
+    config = preset(name).resolved()
+    assert config.model.image_channels == (3 if config.env.learned_fixation else 4)
+    assert config.model.grasp_action_dim == config.env.dof
+    assert config.workers >= 1 and config.eval_workers >= 1
+    assert TrainConfig.from_json(config.to_json()) == config
+
+
+def test_preset_table_matches_the_paper():
+    assert set(PRESETS) == {
+        "active-target", "passive-target", "active-target-no-logpolar", "active-target-no-representation",
+        "active-learned-6d", "active-learned-4d", "smoke",
+    }  # fmt: skip
+    assert preset("passive-target").env.env_id == "apr/PassiveGrasp-v0"
+    assert preset("active-target-no-logpolar").env.foveation == "resize"
+    assert preset("active-target-no-representation").model.representation is False
+    assert preset("active-learned-4d").env.dof == 4 and preset("active-learned-4d").env.target == "learned"
+    with pytest.raises(ValueError, match="active-target"):
+        preset("no-such-preset")
+
+
+def test_presets_are_independent_copies():
+    first = preset("active-target")
+    first.env.dof = 4
+    assert preset("active-target").env.dof == 6
+
+
+def test_a_replay_that_does_not_fit_is_refused(monkeypatch, tmp_path: Path):
+    from apr.train import trainer
+
+    monkeypatch.setattr(trainer, "available_memory_bytes", lambda: 10 * 2**20)
+    config = dataclasses.replace(preset("smoke"), runs_dir=tmp_path, run_name="too-big", replay_capacity=100_000)
+    with pytest.raises(SystemExit, match="replay-capacity"):
+        trainer.Trainer(config)
+
+
+def test_a_killed_worker_is_replaced_and_the_episode_reported_lost():
+    kwargs = {"dof": 4, "target": "env", "renderer": "tiny"}
+    with EnvWorkers(1, "apr/ActiveGrasp-v0", kwargs) as workers:
+        workers.send_reset(0, 1)
+        observation_, _ = workers.receive(0)
+        assert observation_["images"].shape == (3, 64, 64, 4)
+        os.kill(workers.pid(0), signal.SIGKILL)
+        workers.send_step(0, np.zeros(4, np.float32))
+        failure = workers.receive(0)
+        assert isinstance(failure, WorkerFailure) and "exited" in failure.reason
+        assert workers.failures == 1
+        workers.send_reset(0, 1)  # the replacement works, and the seed gives the same episode
+        again, _ = workers.receive(0)
+        np.testing.assert_array_equal(again["images"], observation_["images"])
+        workers.send_step(0, np.zeros(4, np.float32))
+        assert isinstance(workers.receive(0), StepResult)
