@@ -64,7 +64,9 @@ class Progress:
 def make_run_dir(config: TrainConfig) -> Path:
     name = config.run_name or f"{config.preset}__s{config.seed}__{time.strftime('%Y%m%d-%H%M%S')}"
     run_dir = config.runs_dir / name
-    run_dir.mkdir(parents=True, exist_ok=False)
+    if run_dir.exists():
+        raise SystemExit(f"{run_dir} exists: continue it with `apr train --resume {run_dir}`, or choose a --run-name")
+    run_dir.mkdir(parents=True)
     return run_dir
 
 
@@ -143,7 +145,7 @@ class Trainer:
         from torch.utils.tensorboard import SummaryWriter
 
         self.writer = SummaryWriter(str(self.run_dir / "tb"))
-        workers = EnvWorkers(config.workers, env.env_id, env.make_kwargs("train"))
+        workers = self.workers = EnvWorkers(config.workers, env.env_id, env.make_kwargs("train"))
         previous_handler = signal.signal(signal.SIGINT, self._request_stop)
         started = time.perf_counter() - progress.wall_s
         bar = tqdm(total=config.total_grasps, initial=progress.grasps, unit="grasp", dynamic_ncols=True)

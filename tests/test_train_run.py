@@ -1,0 +1,110 @@
+"""Training runs end to end (small): the smoke preset through the CLI, determinism, resume, a killed worker."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import os
+import signal
+from pathlib import Path
+
+import pytest
+
+from apr.cli import main
+from apr.train.config import TrainConfig, preset
+from apr.train.trainer import METRICS_COLUMNS, Trainer, latest_checkpoint
+
+# Columns that depend on the wall clock, not on the computation.
+TIMING_COLUMNS = {"wall_s", "grasps_per_min"}
+
+
+def read_metrics(run_dir: Path) -> list[dict[str, str]]:
+    with open(run_dir / "metrics.csv", newline="") as file:
+        return list(csv.DictReader(file))
+
+
+def computed(rows: list[dict[str, str]]) -> list[dict[str, str]]:
+    return [{k: v for k, v in row.items() if k not in TIMING_COLUMNS} for row in rows]
+
+
+def tiny_run(tmp: Path, name: str, **changes) -> TrainConfig:
+    """Four grasps with one worker: warm-up, then the policy acting and the learner updating.
+
+    TinyRenderer: Mesa's llvmpipe (EGL on a CPU) can differ in a pixel between runs (docs/decisions.md).
+    """
+    base = preset("smoke")
+    config = dataclasses.replace(
+        base, env=dataclasses.replace(base.env, renderer="tiny"), workers=1, total_grasps=4, random_grasps=1,
+        updates_per_step=0.5, eval_every_grasps=0, eval_episodes=1, checkpoint_every_grasps=2, log_every_grasps=1,
+        image_every_grasps=0, runs_dir=tmp, run_name=name,
+    )  # fmt: skip
+    return dataclasses.replace(config, **changes)
+
+
+def test_smoke_preset_runs_end_to_end(tmp_path: Path):
+    main(["train", "--preset", "smoke", "--runs-dir", str(tmp_path), "--run-name", "smoke"])
+    run = tmp_path / "smoke"
+    rows = read_metrics(run)
+    assert list(rows[0]) == list(METRICS_COLUMNS)
+    assert int(rows[-1]["grasps"]) == 8 and int(rows[-1]["updates"]) > 0 and int(rows[-1]["env_steps"]) >= 8
+    assert rows[-1]["eval_success"] != "" and float(rows[-1]["eval_ci_low"]) <= float(rows[-1]["eval_ci_high"])
+    evaluations = sorted((run / "eval").glob("eval_*.json"))
+    assert [json.loads(p.read_text())["grasps"] for p in evaluations] == [4, 8]
+    assert json.loads(evaluations[-1].read_text())["episodes"] == 2
+    assert latest_checkpoint(run).name == "checkpoint_00000008.pt"
+    saved = TrainConfig.from_json((run / "config.json").read_text())
+    assert saved.preset == "smoke" and saved.model.image_channels == 3 and saved.model.grasp_action_dim == 4
+    assert list((run / "tb").iterdir()), "TensorBoard wrote nothing"
+
+    out = tmp_path / "eval.json"
+    main(["eval", str(run), "--episodes", "1", "--json", str(out)])
+    result = json.loads(out.read_text())
+    assert result["episodes"] == 1 and result["split"] == "test" and result["grasps"] == 8
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory) -> Path:
+    return Trainer(tiny_run(tmp_path_factory.mktemp("runs"), "uninterrupted")).train()
+
+
+def test_same_seed_gives_identical_metrics(uninterrupted: Path, tmp_path: Path):
+    again = Trainer(tiny_run(tmp_path, "again")).train()
+    rows = read_metrics(uninterrupted)
+    assert computed(read_metrics(again)) == computed(rows)
+    assert int(rows[-1]["updates"]) > 0, "the learner never ran: the comparison would prove nothing"
+
+
+def test_stopping_and_resuming_gives_the_uninterrupted_result(uninterrupted: Path, tmp_path: Path):
+    trainer = Trainer(tiny_run(tmp_path, "interrupted"))
+    between_rounds = trainer._between_rounds
+
+    def stop_after_two_grasps(grasps_before: int) -> None:  # as Ctrl-C does: finish the round, then stop
+        between_rounds(grasps_before)
+        if trainer.progress.grasps >= 2:
+            trainer._stop_requested = True
+
+    trainer._between_rounds = stop_after_two_grasps
+    run = trainer.train()
+    assert int(read_metrics(run)[-1]["grasps"]) == 2
+    Trainer.resume(run).train()
+    assert computed(read_metrics(run)) == computed(read_metrics(uninterrupted))
+
+
+def test_a_killed_worker_is_replaced_and_the_run_finishes(tmp_path: Path):
+    trainer = Trainer(tiny_run(tmp_path, "killed", total_grasps=3, checkpoint_every_grasps=0))
+    learn = trainer._learn
+    killed = []
+
+    def kill_once_while_stepping(steps: int) -> None:
+        if not killed and trainer.progress.grasps == 1:
+            pid = trainer.workers.pid(0)
+            os.kill(pid, signal.SIGKILL)
+            killed.append(pid)
+        learn(steps)
+
+    trainer._learn = kill_once_while_stepping
+    run = trainer.train()
+    rows = read_metrics(run)
+    assert killed and int(rows[-1]["lost_episodes"]) == 1
+    assert int(rows[-1]["grasps"]) == 3  # the lost episode does not count; the run still did its 3
