@@ -7,6 +7,11 @@
     apr render --out DIR                          PNGs of one episode as the robot sees it
     apr bench env                                 environment speed against the raw ceiling
     apr bench learner                             milliseconds per joint GQN + SAC update
+    apr reproduce table1 --seeds S --grasps N     train the presets of Table 1 (resumable), write table1.md
+    apr reproduce package RUN_DIR                 package a run's checkpoint for apr demo
+    apr plot RUN_DIR... --out FILE                held-out success against grasps, one line per preset
+    apr figures RUN_DIR --out DIR                 the paper's pictures (Figs 1, 3, 5, 6 and a GIF) of a run
+    apr demo                                      a policy on held-out objects, with a short report
 
 Every subcommand takes ``--help``.
 """
@@ -27,6 +32,12 @@ from apr.commands import render as render_command
 from apr.commands import train as train_command
 from apr.commands.render import RenderArgs
 from apr.commands.train import EvalArgs, PresetsArgs
+from apr.reproduce import campaign, demo, figures, plot, policies
+from apr.reproduce.campaign import Table1Args
+from apr.reproduce.demo import DemoArgs
+from apr.reproduce.figures import FiguresArgs
+from apr.reproduce.plot import PlotArgs
+from apr.reproduce.policies import PackageArgs
 
 
 @dataclass
@@ -40,11 +51,25 @@ class BenchArgs:
     ]
 
 
+@dataclass
+class ReproduceArgs:
+    """Reproducing the paper: Table 1 over presets and seeds, and packaging a checkpoint for the demo."""
+
+    task: Annotated[
+        Annotated[Table1Args, tyro.conf.subcommand("table1")] | Annotated[PackageArgs, tyro.conf.subcommand("package")],
+        tyro.conf.arg(name=""),
+    ]
+
+
 Command = (
     Annotated[EvalArgs, tyro.conf.subcommand("eval")]
     | Annotated[PresetsArgs, tyro.conf.subcommand("presets")]
     | Annotated[RenderArgs, tyro.conf.subcommand("render")]
     | Annotated[BenchArgs, tyro.conf.subcommand("bench")]
+    | Annotated[ReproduceArgs, tyro.conf.subcommand("reproduce")]
+    | Annotated[PlotArgs, tyro.conf.subcommand("plot")]
+    | Annotated[FiguresArgs, tyro.conf.subcommand("figures")]
+    | Annotated[DemoArgs, tyro.conf.subcommand("demo")]
 )
 
 
@@ -60,6 +85,17 @@ def main(argv: list[str] | None = None) -> None:
         train_command.list_presets(command)
     elif isinstance(command, RenderArgs):
         render_command.run(command)
+    elif isinstance(command, ReproduceArgs):
+        if isinstance(command.task, Table1Args):
+            campaign.run(command.task)
+        else:
+            policies.run_package(command.task)
+    elif isinstance(command, PlotArgs):
+        plot.run(command)
+    elif isinstance(command, FiguresArgs):
+        figures.run(command)
+    elif isinstance(command, DemoArgs):
+        demo.run(command)
     elif isinstance(command.benchmark, EnvBenchArgs):
         env_bench.run(command.benchmark)
     else:

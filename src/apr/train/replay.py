@@ -148,9 +148,16 @@ class ReplayBuffer:
 
     # ------------------------------------------------------------------------------------------ persistence
     def state(self) -> dict[str, np.ndarray]:
-        """Everything, as arrays (for ``np.savez``)."""
-        arrays = {name: value for name, value in vars(self).items() if isinstance(value, np.ndarray)}
-        arrays.update({f"frames_{name}": value for name, value in vars(self.frames).items()
+        """The filled part of every array (for ``np.savez``): a young buffer saves small."""
+        filled = {
+            "t": min(self.t_count, self.capacity),
+            "f": min(self.f_count, self.fixation_capacity),
+            "frames": min(self.frames.writes, self.frames.capacity),
+        }
+        # t_* arrays hold grasp transitions, f_* arrays fixation samples
+        arrays = {name: value[: filled[name[0]]] for name, value in vars(self).items()
+                  if isinstance(value, np.ndarray)}  # fmt: skip
+        arrays.update({f"frames_{name}": value[: filled["frames"]] for name, value in vars(self.frames).items()
                        if isinstance(value, np.ndarray)})  # fmt: skip
         arrays["counts"] = np.array([self.t_count, self.f_count, self.frames.writes])
         return arrays
@@ -168,6 +175,6 @@ class ReplayBuffer:
                 if name == "counts":
                     self.t_count, self.f_count, self.frames.writes = (int(x) for x in data[name])
                 elif name.startswith("frames_"):
-                    getattr(self.frames, name.removeprefix("frames_"))[...] = data[name]
+                    getattr(self.frames, name.removeprefix("frames_"))[: len(data[name])] = data[name]
                 else:
-                    getattr(self, name)[...] = data[name]
+                    getattr(self, name)[: len(data[name])] = data[name]

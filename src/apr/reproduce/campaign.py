@@ -1,0 +1,238 @@
+"""``apr reproduce table1``: train the presets of Table 1 over several seeds, then write the table.
+
+Runs are named ``PRESET__sSEED`` under the output folder, so the command is resumable: a finished run (one
+with an evaluation at or beyond the grasp budget) is skipped, an unfinished one continues from its latest
+checkpoint (``Trainer.resume``), and a folder without a checkpoint starts over. ``--parallel K`` trains K runs
+at once, each in its own process (each run also has its environment worker processes); their output goes to
+``RUN/train.log``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import multiprocessing
+import os
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import torch
+
+from apr.model.config import ModelConfig
+from apr.reproduce.runs import final_eval
+from apr.reproduce.table import PAPER_PRESETS, write_table1
+from apr.train.config import PRESETS, TrainConfig, preset
+
+RunStatus = Literal["done", "resume", "new", "restart"]
+
+
+@dataclass
+class Table1Args:
+    """Train the presets of the paper's Table 1 over several seeds (resumable), then write table1.md."""
+
+    seeds: int = 2
+    """Seeds per preset: 0, 1, ..., SEEDS-1 (the paper's Figure 4 used 2)."""
+    grasps: int | None = None
+    """Grasps per run; default: each preset's own budget (70K; 25K for active-learned-4d)."""
+    presets: tuple[str, ...] = PAPER_PRESETS
+    """Presets to run (apr presets lists them)."""
+    out: Path = Path("runs/table1")
+    """Parent folder of the runs (PRESET__sSEED) and of table1.md."""
+    parallel: int = 1
+    """Runs trained at once, each in its own process (1: in this process, with a progress bar)."""
+    workers: int = 0
+    """Environment processes per run; 0 = the CPU cores shared among the parallel runs."""
+    eval_episodes: int | None = None
+    """Episodes per evaluation; default: the preset's (100, the paper's protocol)."""
+    random_grasps: int | None = None
+    """Warm-up episodes with random actions; default: the preset's (200)."""
+    replay_capacity: int | None = None
+    """Grasp transitions kept in replay; default: the preset's (50,000: about 2.5 GB with the target mask)."""
+    tiny_model: bool = False
+    """Use the tiny model sizes of the smoke preset (a CPU check of the whole campaign, not the paper)."""
+    table_only: bool = False
+    """Train nothing: write table1.md from the runs already under OUT."""
+
+
+@dataclass
+class PlannedRun:
+    """One run of the campaign and what to do with it."""
+
+    preset: str
+    seed: int
+    run_dir: Path
+    config: TrainConfig
+    """The configuration a new run starts with (a resumed run keeps its saved one, with this budget)."""
+    status: RunStatus
+
+
+def run_name(preset_name: str, seed: int) -> str:
+    """The deterministic folder name of a campaign run."""
+    return f"{preset_name}__s{seed}"
+
+
+def campaign_config(
+    preset_name: str, seed: int, out: Path, overrides: dict[str, Any] | None = None, tiny_model: bool = False
+) -> TrainConfig:
+    """The configuration of one campaign run: the preset, the seed, the run folder and any overrides."""
+    config = preset(preset_name)
+    if tiny_model:  # keep the preset's ablation switch
+        config.model = ModelConfig.tiny(representation=config.model.representation)
+    return dataclasses.replace(
+        config, seed=seed, runs_dir=out, run_name=run_name(preset_name, seed), **(overrides or {})
+    )
+
+
+def run_status(run_dir: Path, total_grasps: int) -> RunStatus:
+    """done: it has an evaluation at or beyond ``total_grasps``; resume: it has a checkpoint; new: no run
+    folder; restart: a run folder without a checkpoint."""
+    from apr.train.trainer import latest_checkpoint
+
+    if not (run_dir / "config.json").exists():
+        return "new"
+    result = final_eval(run_dir)
+    if result is not None and int(result["grasps"]) >= total_grasps:
+        return "done"
+    return "resume" if latest_checkpoint(run_dir) is not None else "restart"
+
+
+def plan_runs(
+    presets: Sequence[str],
+    seeds: Sequence[int],
+    out: Path,
+    overrides: dict[str, Any] | None = None,
+    tiny_model: bool = False,
+) -> list[PlannedRun]:
+    """Every (preset, seed) with its run folder, configuration and status."""
+    unknown = [name for name in presets if name not in PRESETS]
+    if unknown:
+        raise SystemExit(f"unknown preset(s) {', '.join(unknown)}; the presets are: {', '.join(PRESETS)}")
+    plans = []
+    for name in presets:
+        for seed in seeds:
+            config = campaign_config(name, seed, out, overrides, tiny_model)
+            run_dir = out / config.run_name
+            plans.append(PlannedRun(name, seed, run_dir, config, run_status(run_dir, config.total_grasps)))
+    return plans
+
+
+def train_planned(plan: PlannedRun, torch_threads: int = 0) -> Path:
+    """Train one planned run to its budget (start, resume or restart it); return its folder."""
+    from apr.train.trainer import Trainer
+
+    if torch_threads > 0:
+        torch.set_num_threads(torch_threads)
+    if plan.status == "resume":
+        saved = Trainer.saved_config(plan.run_dir)
+        return Trainer.resume(plan.run_dir, dataclasses.replace(saved, total_grasps=plan.config.total_grasps)).train()
+    if plan.status == "restart":  # no checkpoint: what it logged cannot be continued
+        print(f"{plan.run_dir}: no checkpoint, starting it over")
+        (plan.run_dir / "metrics.csv").unlink(missing_ok=True)
+        for stale in (plan.run_dir / "eval").glob("eval_*.json"):
+            stale.unlink()
+    plan.run_dir.mkdir(parents=True, exist_ok=True)
+    return Trainer(plan.config, run_dir=plan.run_dir).train()
+
+
+def _train_logged(plan: PlannedRun, torch_threads: int) -> None:
+    """The body of a campaign process: train one run, its stdout and stderr into RUN/train.log."""
+    plan.run_dir.mkdir(parents=True, exist_ok=True)
+    log = os.open(plan.run_dir / "train.log", os.O_WRONLY | os.O_CREAT | os.O_APPEND)
+    os.dup2(log, 1)
+    os.dup2(log, 2)
+    train_planned(plan, torch_threads)
+
+
+def run_campaign(plans: Sequence[PlannedRun], parallel: int = 1) -> list[tuple[PlannedRun, int]]:
+    """Train the runs that are not done, ``parallel`` at a time; return (run, exit code) for each one trained."""
+    todo = [plan for plan in plans if plan.status != "done"]
+    for plan in plans:
+        if plan.status == "done":
+            print(f"{plan.run_dir}: done, skipped")
+    if parallel <= 1:
+        finished = []
+        for plan in todo:
+            print(f"{plan.run_dir}: {plan.status}")
+            train_planned(plan)
+            finished.append((plan, 0))
+        return finished
+
+    context = multiprocessing.get_context("spawn")
+    threads = max(1, (os.cpu_count() or 1) // parallel)
+    pending, running, finished = list(todo), [], []
+    while pending or running:
+        while pending and len(running) < parallel:
+            plan = pending.pop(0)
+            process = context.Process(target=_train_logged, args=(plan, threads), name=plan.run_dir.name)
+            process.start()
+            print(f"{plan.run_dir}: {plan.status}, training in process {process.pid} (log: train.log)")
+            running.append((plan, process))
+        time.sleep(1.0)
+        for plan, process in list(running):
+            if not process.is_alive():
+                process.join()
+                running.remove((plan, process))
+                finished.append((plan, process.exitcode))
+                outcome = "finished" if process.exitcode == 0 else f"FAILED (exit code {process.exitcode})"
+                print(f"{plan.run_dir}: {outcome}")
+    return finished
+
+
+def overrides_from_args(args: Table1Args) -> dict[str, Any]:
+    """The TrainConfig fields the command line changes for every run."""
+    overrides: dict[str, Any] = {}
+    if args.grasps is not None:
+        overrides["total_grasps"] = args.grasps
+    if args.eval_episodes is not None:
+        overrides["eval_episodes"] = args.eval_episodes
+    if args.random_grasps is not None:
+        overrides["random_grasps"] = args.random_grasps
+    if args.replay_capacity is not None:
+        overrides["replay_capacity"] = args.replay_capacity
+    if args.workers > 0 or args.parallel > 1:
+        overrides["workers"] = args.workers or max(1, (os.cpu_count() or 1) // args.parallel)
+    return overrides
+
+
+def command_line(args: Table1Args) -> str:
+    """The ``apr reproduce table1`` command line that gives ``args``."""
+    parts = ["apr reproduce table1", f"--seeds {args.seeds}"]
+    if args.grasps is not None:
+        parts.append(f"--grasps {args.grasps}")
+    if tuple(args.presets) != PAPER_PRESETS:
+        parts.append("--presets " + " ".join(args.presets))
+    parts.append(f"--out {args.out}")
+    defaults = Table1Args()
+    for name in ("parallel", "workers", "eval_episodes", "random_grasps", "replay_capacity"):
+        if getattr(args, name) != getattr(defaults, name):
+            parts.append(f"--{name.replace('_', '-')} {getattr(args, name)}")
+    if args.tiny_model:
+        parts.append("--tiny-model")
+    return " ".join(parts)
+
+
+def run(args: Table1Args, overrides: dict[str, Any] | None = None) -> Path:
+    """Plan, train what is missing, and write ``OUT/table1.md``; return its path.
+
+    Args:
+        overrides: further TrainConfig fields for every run (tests use them to shrink the smoke preset).
+    """
+    seeds = list(range(args.seeds))
+    plans = plan_runs(
+        args.presets, seeds, args.out, {**overrides_from_args(args), **(overrides or {})}, args.tiny_model
+    )
+    failed = []
+    if not args.table_only:
+        failed = [plan for plan, code in run_campaign(plans, args.parallel) if code != 0]
+    present = [plan.run_dir for plan in plans if (plan.run_dir / "config.json").exists()]
+    source = (
+        f"Built from the final evaluations of the runs under `{args.out}` ({len(present)} of {len(plans)} "
+        f"planned runs present) by `{command_line(args)}`."
+    )
+    path = write_table1(present, args.out / "table1.md", args.presets, source)
+    print(f"wrote {path}")
+    if failed:
+        raise SystemExit(f"{len(failed)} run(s) failed: " + ", ".join(str(plan.run_dir) for plan in failed))
+    return path

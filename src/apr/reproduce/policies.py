@@ -1,0 +1,216 @@
+"""A policy to run and picture, always with an honest label: a run's checkpoint, a packaged checkpoint, or an
+untrained agent.
+
+**Packaged checkpoints** live in ``src/apr/reproduce/checkpoints/``: ``NAME.json`` (the manifest: the
+resolved training configuration, the grasps, the command that trained it, its final evaluation) beside
+``NAME.pt`` (the networks' weights only, a plain tensor dict that ``torch.load(..., weights_only=True)`` reads
+without running any pickled code) or ``NAME.safetensors`` (the same tensors; needs the ``safetensors``
+package). ``apr reproduce package RUN_DIR`` writes one from a run; ``apr demo`` uses the first one it finds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Literal
+
+import torch
+import tyro
+
+from apr.model.agent import APRAgent
+from apr.reproduce.runs import final_eval
+from apr.train.config import TrainConfig, preset
+
+PACKAGED_DIR = Path(__file__).parent / "checkpoints"
+"""Where packaged checkpoints live (inside the installed package)."""
+MANIFEST_FORMAT = "apr-packaged-checkpoint/1"
+UNTRAINED_PRESET = "smoke"
+"""The preset whose (tiny) model the demo runs untrained when no packaged checkpoint exists."""
+
+
+@dataclass
+class PolicySnapshot:
+    """An agent with the configuration it was trained with and what produced it."""
+
+    agent: APRAgent
+    config: TrainConfig
+    grasps: int
+    """Training grasps behind the weights (0: untrained)."""
+    label: str
+    """Says what the policy is: which run or package, at how many grasps, or that it is untrained."""
+    trained: bool
+    """False for freshly initialised weights, whatever the label."""
+    source: str = ""
+    """The file or folder it came from."""
+
+
+def new_agent(config: TrainConfig) -> APRAgent:
+    """A freshly initialised agent for ``config`` (no torch.compile; the best local device)."""
+    return APRAgent(config.model.replace(compile=False, device="auto"))
+
+
+def untrained_snapshot(preset_name: str = UNTRAINED_PRESET, seed: int = 0) -> PolicySnapshot:
+    """A freshly initialised agent of ``preset_name``: an UNTRAINED policy, labelled so."""
+    config = dataclasses.replace(preset(preset_name), seed=seed).resolved()
+    label = f"UNTRAINED policy (fresh weights of the {preset_name} preset, seed {seed}; 0 grasps of training)"
+    return PolicySnapshot(new_agent(config), config, 0, label, trained=False, source=f"preset {preset_name}")
+
+
+def initial_snapshot(config: TrainConfig, run_name: str) -> PolicySnapshot:
+    """The run's agent before training: the run's configuration and seed give the run's initial weights."""
+    label = f"run {run_name} at 0 grasps (its initial, untrained weights)"
+    return PolicySnapshot(new_agent(config), config, 0, label, trained=False, source=run_name)
+
+
+def run_checkpoints(run_dir: Path) -> list[Path]:
+    """The checkpoints a run kept, by increasing grasps."""
+    return sorted((run_dir / "checkpoints").glob("checkpoint_*.pt"))
+
+
+def load_training_checkpoint(path: Path) -> PolicySnapshot:
+    """A training checkpoint (``RUN/checkpoints/checkpoint_XXXXXXXX.pt``)."""
+    state = torch.load(path, map_location="cpu", weights_only=False)
+    config = TrainConfig.from_json(state["config"])
+    agent = new_agent(config)
+    agent.load_state_dict(state["agent"])
+    grasps = int(state["progress"]["grasps"])
+    run_name = path.parent.parent.name
+    trained = grasps > 0 and int(state["progress"].get("updates", 1)) > 0
+    label = f"run {run_name} at {grasps:,} grasps ({path.name})"
+    if not trained:
+        label += ", no learner update yet: untrained weights"
+    return PolicySnapshot(agent, config, grasps, label, trained=trained, source=str(path))
+
+
+def load_run(run_dir: Path) -> PolicySnapshot:
+    """The latest checkpoint of a run folder."""
+    checkpoints = run_checkpoints(run_dir)
+    if not checkpoints:
+        raise SystemExit(f"{run_dir} has no checkpoint (checkpoints/checkpoint_*.pt)")
+    return load_training_checkpoint(checkpoints[-1])
+
+
+def packaged_checkpoints(directory: Path = PACKAGED_DIR) -> list[Path]:
+    """The manifests (``*.json``) of the packaged checkpoints in ``directory``, by name."""
+    if not directory.is_dir():
+        return []
+    manifests = []
+    for path in sorted(directory.glob("*.json")):
+        try:
+            if json.loads(path.read_text()).get("format") == MANIFEST_FORMAT:
+                manifests.append(path)
+        except (OSError, json.JSONDecodeError):
+            continue
+    return manifests
+
+
+def load_packaged(manifest_path: Path) -> PolicySnapshot:
+    """A packaged checkpoint, from its manifest (``NAME.json``) or its weights file."""
+    if manifest_path.suffix != ".json":
+        manifest_path = manifest_path.with_suffix(".json")
+    manifest = json.loads(manifest_path.read_text())
+    config = TrainConfig.from_json(json.dumps(manifest["config"]))
+    weights_path = manifest_path.parent / manifest["weights"]
+    if weights_path.suffix == ".safetensors":
+        try:
+            from safetensors.torch import load_file
+        except ImportError as error:
+            raise SystemExit(f"{weights_path} needs the safetensors package: pip install safetensors") from error
+        weights = load_file(str(weights_path), device="cpu")
+    else:
+        weights = torch.load(weights_path, map_location="cpu", weights_only=True)
+    agent = new_agent(config)
+    agent.networks.load_state_dict(weights)
+    grasps = int(manifest["grasps"])
+    label = f"packaged checkpoint {manifest_path.stem} ({config.preset}, {grasps:,} grasps)"
+    return PolicySnapshot(agent, config, grasps, label, trained=grasps > 0, source=str(manifest_path))
+
+
+def load_policy(path: Path) -> PolicySnapshot:
+    """A run folder (its latest checkpoint), a training checkpoint, or a packaged checkpoint."""
+    path = Path(path)
+    if path.is_dir():
+        return load_run(path)
+    if not path.exists():
+        raise SystemExit(f"{path} does not exist")
+    if path.suffix == ".json" or path.with_suffix(".json").exists():
+        return load_packaged(path)
+    return load_training_checkpoint(path)
+
+
+def package_checkpoint(
+    source: Path, out_dir: Path = PACKAGED_DIR, name: str = "", command: str = "", weights_format: str = "pt"
+) -> Path:
+    """Write a packaged checkpoint (manifest and weights) from a run folder or a training checkpoint.
+
+    Args:
+        command: the command that trained it (recorded in the manifest; default: rebuilt from the config).
+        weights_format: "pt" (torch tensors, no extra dependency) or "safetensors" (needs the package).
+
+    Returns:
+        The manifest's path.
+    """
+    snapshot = load_policy(source)
+    run_dir = Path(source) if Path(source).is_dir() else Path(snapshot.source).parent.parent
+    config = snapshot.config
+    name = name or f"{config.preset}__s{config.seed}__{snapshot.grasps}grasps"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    weights = {key: value.detach().cpu().contiguous() for key, value in snapshot.agent.networks.state_dict().items()}
+    if weights_format == "safetensors":
+        from safetensors.torch import save_file
+
+        weights_path = out_dir / f"{name}.safetensors"
+        save_file(weights, str(weights_path))
+    else:
+        weights_path = out_dir / f"{name}.pt"
+        torch.save(weights, weights_path)
+    evaluation = final_eval(run_dir) if (run_dir / "eval").is_dir() else None
+    if evaluation is not None and int(evaluation["grasps"]) != snapshot.grasps:
+        evaluation = None  # an evaluation of other weights says nothing about these
+    manifest = {
+        "format": MANIFEST_FORMAT,
+        "weights": weights_path.name,
+        "preset": config.preset,
+        "seed": config.seed,
+        "grasps": snapshot.grasps,
+        "command": command
+        or f"apr train --preset {config.preset} --seed {config.seed} "
+        f"--total-grasps {config.total_grasps} (other fields: see config)",
+        "source": str(snapshot.source),
+        "created": time.strftime("%Y-%m-%d %H:%M:%S"),
+        "final_eval": {
+            key: evaluation[key]
+            for key in ("split", "episodes", "successes", "success_rate", "ci_low", "ci_high", "grasps")
+        }
+        if evaluation
+        else None,
+        "config": json.loads(config.to_json()),
+    }
+    manifest_path = out_dir / f"{name}.json"
+    manifest_path.write_text(json.dumps(manifest, indent=2))
+    return manifest_path
+
+
+@dataclass
+class PackageArgs:
+    """Package a run's checkpoint for apr demo: its weights and a manifest, by default into the package."""
+
+    source: Annotated[Path, tyro.conf.Positional]
+    """A run folder (its latest checkpoint) or a training checkpoint file."""
+    out: Path = PACKAGED_DIR
+    """Folder for NAME.json and the weights (default: src/apr/reproduce/checkpoints, where apr demo looks)."""
+    name: str = ""
+    """File name without suffix; default: PRESET__sSEED__NGRASPSgrasps."""
+    command: str = ""
+    """The command that trained it, for the manifest (default: rebuilt from the run's configuration)."""
+    weights_format: Literal["pt", "safetensors"] = "pt"
+    """pt: a torch tensor dict (no extra dependency); safetensors: needs pip install safetensors."""
+
+
+def run_package(args: PackageArgs) -> Path:
+    manifest = package_checkpoint(args.source, args.out, args.name, args.command, args.weights_format)
+    print(f"wrote {manifest} and its weights; apr demo now uses it")
+    return manifest

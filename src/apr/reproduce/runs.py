@@ -1,0 +1,106 @@
+"""Reading run folders: the configuration, the evaluations and the learning curve a run wrote.
+
+A run folder (``apr train``) holds ``config.json``, ``metrics.csv``, ``eval/eval_XXXXXXXX.json`` (one per
+evaluation on held-out objects) and ``checkpoints/``. Everything the reproduction reports is read from these
+files, never recomputed.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass
+class RunSummary:
+    """What the table and the plot need from one run folder."""
+
+    run_dir: Path
+    preset: str
+    """The preset the run started from (``config.json``'s ``preset``)."""
+    seed: int
+    config: dict
+    """``config.json`` as a dict."""
+    final_eval: dict | None
+    """The evaluation with the most grasps (``eval/eval_*.json``), or None if the run has none yet."""
+
+    @property
+    def total_grasps(self) -> int:
+        """The grasp budget the run was configured for."""
+        return int(self.config.get("total_grasps", 0))
+
+
+def is_run_dir(path: Path) -> bool:
+    return (path / "config.json").is_file()
+
+
+def find_run_dirs(paths: Iterable[Path]) -> list[Path]:
+    """Run folders among ``paths``: each path is a run folder, or a folder whose sub-folders are runs.
+
+    Raises:
+        FileNotFoundError: a path is neither a run folder nor holds one.
+    """
+    found: list[Path] = []
+    for path in paths:
+        path = Path(path)
+        if is_run_dir(path):
+            found.append(path)
+            continue
+        children = sorted(child for child in path.iterdir() if is_run_dir(child)) if path.is_dir() else []
+        if not children:
+            raise FileNotFoundError(f"{path} is not a run folder (no config.json) and holds none")
+        found.extend(children)
+    return found
+
+
+def read_config(run_dir: Path) -> dict:
+    return json.loads((run_dir / "config.json").read_text())
+
+
+def eval_results(run_dir: Path) -> list[dict]:
+    """Every evaluation of the run (``eval/eval_*.json``), by increasing grasps."""
+    results = []
+    for path in sorted((run_dir / "eval").glob("eval_*.json")):
+        result = json.loads(path.read_text())
+        result.setdefault("grasps", int(path.stem.split("_")[-1]))
+        result["path"] = str(path)
+        results.append(result)
+    return sorted(results, key=lambda result: result["grasps"])
+
+
+def final_eval(run_dir: Path) -> dict | None:
+    """The run's final evaluation: the one with the most grasps, or None."""
+    results = eval_results(run_dir)
+    return results[-1] if results else None
+
+
+def read_run(run_dir: Path) -> RunSummary:
+    config = read_config(run_dir)
+    return RunSummary(
+        run_dir=run_dir,
+        preset=str(config.get("preset", "unknown")),
+        seed=int(config.get("seed", 0)),
+        config=config,
+        final_eval=final_eval(run_dir),
+    )
+
+
+def eval_curve(run_dir: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Held-out success against grasps: the ``metrics.csv`` rows that carry an evaluation.
+
+    Returns:
+        grasps (int array) and success rates in [0, 1] (float array), by increasing grasps.
+    """
+    path = run_dir / "metrics.csv"
+    if not path.exists():
+        return np.zeros(0, dtype=int), np.zeros(0)
+    with open(path, newline="") as file:
+        rows = [row for row in csv.DictReader(file) if row.get("eval_success", "") != ""]
+    by_grasps = {int(row["grasps"]): float(row["eval_success"]) for row in rows}  # a later row wins
+    grasps = np.array(sorted(by_grasps), dtype=int)
+    return grasps, np.array([by_grasps[g] for g in grasps], dtype=float)

@@ -1,0 +1,286 @@
+"""The reproduction layer: Table 1, the learning-curve plot, the figures and the demo.
+
+The table and the plot are checked against fabricated run folders (synthetic config.json, metrics.csv and
+eval files for every preset, no training): the rendered numbers must be exactly those of the files. The
+commands that need a checkpoint share ONE real tiny training run, made by ``apr reproduce table1`` itself
+(module-scoped fixture).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import statistics
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+import torch
+
+from apr.cli import main
+from apr.model.agent import APRAgent
+from apr.model.config import ModelConfig
+from apr.reproduce import campaign, demo, figures, plot
+from apr.reproduce.campaign import Table1Args, plan_runs
+from apr.reproduce.episodes import make_env
+from apr.reproduce.policies import PolicySnapshot, load_training_checkpoint, package_checkpoint, run_checkpoints
+from apr.reproduce.table import PAPER_PRESETS, build_table1, render_table1
+from apr.train.config import preset
+from apr.train.evaluation import wilson_interval
+from apr.train.trainer import METRICS_COLUMNS
+
+TINY_RUN = dict(
+    total_grasps=2,
+    workers=1,
+    random_grasps=1,
+    eval_episodes=1,
+    eval_every_grasps=0,
+    checkpoint_every_grasps=1,
+    image_every_grasps=0,
+    log_every_grasps=1,
+)
+"""The smoke preset shrunk further: 2 grasps (1 random), 1 evaluation episode at the end, a checkpoint a grasp."""
+
+PAPER_SAYS = {
+    "active-target": "84%",
+    "passive-target": "76%",
+    "active-target-no-logpolar": "79%",
+    "active-target-no-representation": "negligible improvement",
+    "active-learned-6d": "85% after 70K grasps",
+    "active-learned-4d": "85% after 25K grasps",
+}
+
+
+# ------------------------------------------------------------------------------------------- fabricated runs
+def fabricate_run(root: Path, preset_name: str, seed: int, evaluations: list[tuple[int, int, int]]) -> Path:
+    """A run folder without training: config.json, and per (grasps, successes, episodes) an eval file and a
+    metrics.csv row (with a row without evaluation before each)."""
+    run_dir = root / f"{preset_name}__s{seed}"
+    (run_dir / "eval").mkdir(parents=True)
+    (run_dir / "config.json").write_text(dataclasses.replace(preset(preset_name), seed=seed).to_json())
+    rows = []
+    for grasps, successes, episodes in evaluations:
+        low, high = wilson_interval(successes, episodes)
+        result = {
+            "split": "test",
+            "episodes": episodes,
+            "successes": successes,
+            "success_rate": successes / episodes,
+            "ci_low": low,
+            "ci_high": high,
+            "attempts": episodes,
+            "lost": 0,
+            "outcomes": [],
+            "grasps": grasps,
+        }
+        (run_dir / "eval" / f"eval_{grasps:08d}.json").write_text(json.dumps(result))
+        blank = dict.fromkeys(METRICS_COLUMNS, "")
+        rows.append({**blank, "grasps": grasps - 1, "train_success": 0.5})
+        rows.append(
+            {**blank, "grasps": grasps, "eval_success": successes / episodes, "eval_ci_low": low, "eval_ci_high": high}
+        )
+    with open(run_dir / "metrics.csv", "w", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=METRICS_COLUMNS)
+        writer.writeheader()
+        writer.writerows(rows)
+    return run_dir
+
+
+def table_cells(markdown: str) -> dict[str, list[str]]:
+    """The cells of Table 1's rows (the first table of the markdown), by preset."""
+    table = markdown.split("## Runs")[0]
+    rows = {}
+    for line in table.splitlines():
+        if line.startswith("| ") and not line.startswith(("| preset", "| ---")):
+            cells = [cell.strip() for cell in line.strip().strip("|").split("|")]
+            rows[cells[0]] = cells
+    return rows
+
+
+def test_table1_shows_exactly_the_numbers_of_the_final_eval_files(tmp_path: Path):
+    finals: dict[str, list[tuple[int, int]]] = {}
+    for number, name in enumerate(PAPER_PRESETS):
+        if name == "active-target-no-representation":
+            continue  # a preset without runs must still get its row
+        finals[name] = []
+        for seed in range(2):
+            successes, episodes = 40 + 7 * number + 11 * seed, 100 + 20 * seed
+            # an earlier evaluation with other numbers: the table must take the one with the most grasps
+            fabricate_run(tmp_path, name, seed, [(500, 3, 100), (1000 + 10 * number, successes, episodes)])
+            finals[name].append((successes, episodes))
+
+    markdown = render_table1(build_table1([tmp_path]))
+    rows = table_cells(markdown)
+
+    assert set(rows) == set(PAPER_PRESETS)
+    for name, says in PAPER_SAYS.items():
+        assert says in rows[name][1], name
+    assert rows["active-target-no-representation"][2].startswith("not run")
+    for name, seeds in finals.items():
+        total_successes = sum(s for s, _ in seeds)
+        total_episodes = sum(n for _, n in seeds)
+        low, high = wilson_interval(total_successes, total_episodes)
+        expected = (
+            f"{100 * total_successes / total_episodes:.1f}% ({total_successes}/{total_episodes}) "
+            f"[{100 * low:.1f}%, {100 * high:.1f}%]"
+        )
+        assert rows[name][2] == expected
+        rates = [s / n for s, n in seeds]
+        assert rows[name][3] == f"{100 * statistics.mean(rates):.1f}% ± {100 * statistics.stdev(rates):.1f} pts"
+        assert rows[name][4] == "2 (s0, s1)"
+        assert rows[name][6] == str(total_episodes)
+    assert rows["active-target"][5] == "1,000"  # the grasps of the final evaluations
+    assert rows["active-learned-4d"][5] == "1,050"
+    assert "3/100" not in markdown.split("## Runs")[0]  # the earlier evaluations are not reported
+    assert "eval_00001000.json" in markdown  # each run's final evaluation file is named
+
+
+def test_table1_campaign_skips_finished_resumes_checkpointed_and_restarts_the_rest(tmp_path: Path):
+    fabricate_run(tmp_path, "smoke", 0, [(8, 1, 2)])  # evaluated at the budget: done
+    resumable = fabricate_run(tmp_path, "smoke", 1, [(4, 1, 2)])  # half-way, with a checkpoint
+    (resumable / "checkpoints").mkdir()
+    (resumable / "checkpoints" / "checkpoint_00000004.pt").write_bytes(b"")
+    fabricate_run(tmp_path, "smoke", 2, [(4, 1, 2)])  # half-way, no checkpoint: start over
+
+    plans = plan_runs(["smoke"], [0, 1, 2, 3], tmp_path, {"total_grasps": 8})
+
+    assert [plan.status for plan in plans] == ["done", "resume", "restart", "new"]
+    assert [plan.run_dir.name for plan in plans] == ["smoke__s0", "smoke__s1", "smoke__s2", "smoke__s3"]
+    assert all(plan.config.total_grasps == 8 and plan.config.seed == seed for seed, plan in enumerate(plans))
+    more = plan_runs(["smoke"], [0], tmp_path, {"total_grasps": 16})  # a larger budget continues a finished run
+    assert more[0].status == "restart"  # (smoke__s0 has no checkpoint in this fabricated folder)
+
+
+def test_plot_draws_one_line_per_preset_with_the_spread_across_seeds(tmp_path: Path):
+    curves = {
+        "active-target": [(1, 3, 5), (2, 4, 8)],
+        "passive-target": [(0, 1, 2), (1, 1, 3)],
+        "smoke": [(2, 2, 2), (0, 2, 4)],
+    }  # preset -> per seed, successes (of 10) at grasps 100, 200, 300
+    for name, seeds in curves.items():
+        for seed, successes in enumerate(seeds):
+            fabricate_run(tmp_path, name, seed, [(100 * (k + 1), s, 10) for k, s in enumerate(successes)])
+
+    figure = plot.plot_learning_curves([tmp_path])
+
+    axes = figure.axes[0]
+    assert len(axes.lines) == len(curves)
+    assert len(axes.collections) == len(curves)  # one shaded band per preset
+    for line, band, (name, seeds) in zip(axes.lines, axes.collections, curves.items(), strict=True):
+        assert line.get_label().startswith(name)
+        rates = np.array(seeds) / 10
+        assert np.allclose(line.get_xdata(), [100, 200, 300])
+        assert np.allclose(line.get_ydata(), 100 * rates.mean(axis=0))
+        top = band.get_paths()[0].vertices[:, 1].max()
+        assert top == pytest.approx(100 * (rates.mean(axis=0) + rates.std(axis=0, ddof=1)).max())
+
+
+# ------------------------------------------------------------------------------------ one real training run
+@pytest.fixture(scope="module")
+def table1_out(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``apr reproduce table1`` over the smoke preset, one seed, shrunk to 2 grasps: a real run folder."""
+    out = tmp_path_factory.mktemp("table1")
+    campaign.run(Table1Args(seeds=1, presets=("smoke",), out=out), overrides=TINY_RUN)
+    return out
+
+
+@pytest.fixture(scope="module")
+def run_dir(table1_out: Path) -> Path:
+    return table1_out / "smoke__s0"
+
+
+def test_table1_command_trains_writes_the_table_then_skips_the_finished_run(table1_out, run_dir, monkeypatch):
+    result = json.loads((run_dir / "eval" / "eval_00000002.json").read_text())
+    rows = table_cells((table1_out / "table1.md").read_text())
+    low, high = result["ci_low"], result["ci_high"]
+    rate = result["success_rate"]
+    assert rows["smoke"][2] == (
+        f"{100 * rate:.1f}% ({result['successes']}/{result['episodes']}) [{100 * low:.1f}%, {100 * high:.1f}%]"
+    )
+    assert rows["smoke"][5] == "2"
+    assert len(run_checkpoints(run_dir)) == 2
+
+    def no_training(*args, **kwargs):
+        raise AssertionError("a finished run was trained again")
+
+    monkeypatch.setattr(campaign, "train_planned", no_training)
+    (table1_out / "table1.md").unlink()
+    campaign.run(Table1Args(seeds=1, presets=("smoke",), out=table1_out), overrides=TINY_RUN)
+    assert table_cells((table1_out / "table1.md").read_text())["smoke"] == rows["smoke"]
+
+
+def test_plot_command_on_a_real_run_writes_a_picture(run_dir: Path, tmp_path: Path):
+    out = tmp_path / "curves.png"
+    main(["plot", str(run_dir), "--out", str(out)])
+    image = iio.imread(out)
+    assert image.ndim == 3 and image.shape[0] > 200 and image.shape[1] > 300
+
+
+def test_figures_command_writes_every_picture_captioned_with_its_policy(run_dir: Path, tmp_path: Path):
+    out = tmp_path / "figures"
+    main(["figures", str(run_dir), "--out", str(out), "--episodes", "1", "--steps", "3"])
+
+    for name in ("fig1_logpolar", "fig3_active_vs_passive", "fig5_pregrasp", "fig6_gqn_predictions"):
+        image = iio.imread(out / f"{name}.png")
+        assert image.ndim == 3 and image.shape[0] > 100 and image.shape[1] > 100, name
+    frames = iio.imread(out / "episodes.gif", index=None)
+    assert frames.ndim == 4 and frames.shape[0] >= 3 and frames.shape[1:3] == (256 + 34, 512)
+    captions = (out / "figures.md").read_text()
+    assert captions.count("run smoke__s0 at 2 grasps (checkpoint_00000002.pt)") >= 2  # the GIF and Fig. 5
+    assert "driven by the scripted reach-and-grasp" in captions  # smoke learns its fixation: no passive twin
+
+
+def test_gqn_figure_has_a_prediction_per_checkpoint_and_skips_a_model_without_generator(run_dir: Path):
+    snapshots = [load_training_checkpoint(path) for path in run_checkpoints(run_dir)]
+    config = snapshots[0].config
+    env = make_env(config.env, "test", renderer="tiny")
+    try:
+        observation, _ = env.reset(seed=0)
+    finally:
+        env.close()
+
+    figure, caption = figures.gqn_figure(snapshots, [observation, observation], "run smoke__s0")
+
+    assert len(figure.axes) == 2 * (3 + len(snapshots))
+    titles = [axes.get_title() for axes in figure.axes[:5]]
+    assert titles[3:] == ["predicted\n1 grasps", "predicted\n2 grasps"]
+    assert "run smoke__s0" in caption
+    without = APRAgent(ModelConfig.tiny(representation=False, image_channels=3, grasp_action_dim=4))
+    ablation = PolicySnapshot(without, config, 0, "no generator", trained=False)
+    assert figures.gqn_figure([ablation], [observation], "ablation") is None
+
+
+def test_demo_without_a_packaged_checkpoint_runs_an_untrained_policy_and_says_so(tmp_path: Path, capsys):
+    result = demo.run(demo.DemoArgs(out=tmp_path / "demo", episodes=1, gif_episodes=1), packaged_dir=tmp_path)
+
+    report = result.report.read_text()
+    assert "**UNTRAINED POLICY.**" in report and "No trained checkpoint is packaged" in report
+    assert "UNTRAINED" in capsys.readouterr().out
+    assert not result.snapshot.trained
+    numbers = json.loads((tmp_path / "demo" / "result.json").read_text())
+    assert numbers["trained"] is False and numbers["episodes"] == 1
+    assert f"{numbers['successes']}/1 held-out episodes succeeded" in report
+    assert iio.imread(tmp_path / "demo" / "episodes.gif", index=None).shape[0] >= 2
+    assert iio.imread(tmp_path / "demo" / "fig1_logpolar.png").ndim == 3
+
+
+def test_a_packaged_checkpoint_dropped_in_is_what_the_demo_runs_and_reports(run_dir: Path, tmp_path: Path):
+    packaged = tmp_path / "checkpoints"
+    manifest = package_checkpoint(run_dir, packaged, command="pytest tiny smoke run")
+    assert json.loads(manifest.read_text())["final_eval"]["grasps"] == 2
+    trained = load_training_checkpoint(run_checkpoints(run_dir)[-1])
+    assert trained.trained, "the tiny run should have made learner updates"
+
+    snapshot = demo.choose_policy(None, packaged)
+
+    assert snapshot.trained and snapshot.grasps == 2 and "packaged checkpoint" in snapshot.label
+    for key, value in trained.agent.networks.state_dict().items():
+        assert torch.equal(snapshot.agent.networks.state_dict()[key], value), key
+    assert demo.untrained_notice(snapshot, packaged) == ""
+    result = demo.run(demo.DemoArgs(out=tmp_path / "demo", episodes=1, gif_episodes=1), packaged_dir=packaged)
+    report = result.report.read_text()
+    assert "UNTRAINED" not in report
+    assert f"**Policy:** packaged checkpoint {manifest.stem} (smoke, 2 grasps)" in report
+    assert iio.imread(tmp_path / "demo" / "fig5_pregrasp.png").ndim == 3
