@@ -1,0 +1,398 @@
+"""The APR learner: encoder + generator + grasp and fixation SAC heads, updated jointly from one stream.
+
+One update (``APRAgent.update``):
+  1. per sample, two of the step's three views are the context (r = r1 + r2), the third is the query;
+  2. the ELBO of the generator on the query view trains the encoder and generator (paper, Method C);
+  3. the grasp SAC losses and the fixation bandit SAC losses see r detached (stop-gradient), unless the
+     "w/o representation" ablation (``representation=False``) lets the critic losses train the encoder;
+  4. all losses are computed from the same parameters, summed, back-propagated once; every optimiser
+     steps (the parameter sets are disjoint) and the grasp target critics are Polyak-averaged.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from contextlib import AbstractContextManager, nullcontext
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+import torch
+from torch import nn
+
+from apr.model.config import ModelConfig, gqn_learning_rate, pixel_sigma
+from apr.model.encoder import TowerEncoder, encode_scene, images_to_float
+from apr.model.generator import ConvDRAWGenerator, gqn_elbo_loss
+from apr.model.heads import PolicyHeads
+from apr.model.sac import (
+    Metrics,
+    bandit_critic_loss,
+    sac_actor_loss,
+    sac_critic_loss,
+    soft_update,
+    temperature_loss,
+)
+
+Policy = Literal["grasp", "fixation"]
+NUM_VIEWS = 3  # views rendered per step around the fixation point (paper, Method C)
+
+
+def _as_tensor(
+    value: np.ndarray | torch.Tensor, device: torch.device, dtype: torch.dtype | None = None
+) -> torch.Tensor:
+    tensor = value if isinstance(value, torch.Tensor) else torch.from_numpy(np.asarray(value))
+    return tensor.to(device=device, dtype=dtype, non_blocking=True)
+
+
+@dataclass
+class Observation:
+    """A batch of env observations, as the environment returns them (images stay uint8 until used)."""
+
+    images: torch.Tensor
+    """uint8 (B, 3, 64, 64, C): the step's three views, HWC."""
+    viewpoints: torch.Tensor
+    """float32 (B, 3, 6): each view's head joint angles v."""
+    gripper: torch.Tensor
+    """float32 (B, 9): the gripper pose g, shared by the three views."""
+
+    @classmethod
+    def from_env(cls, obs: Mapping[str, Any], device: torch.device | str = "cpu") -> Observation:
+        """From a (vector-)env observation dict of arrays; an unbatched observation gets a batch axis."""
+        device = torch.device(device)
+        images = _as_tensor(obs["images"], device)
+        viewpoints = _as_tensor(obs["viewpoints"], device, torch.float32)
+        gripper = _as_tensor(obs["gripper"], device, torch.float32)
+        if images.ndim == 4:
+            images, viewpoints, gripper = images[None], viewpoints[None], gripper[None]
+        return cls(images, viewpoints, gripper)
+
+    def __len__(self) -> int:
+        return self.images.shape[0]
+
+    def __getitem__(self, index: slice | torch.Tensor) -> Observation:
+        return Observation(self.images[index], self.viewpoints[index], self.gripper[index])
+
+    def to(self, device: torch.device | str) -> Observation:
+        return Observation(self.images.to(device), self.viewpoints.to(device), self.gripper.to(device))
+
+    def poses(self) -> torch.Tensor:
+        """(B, 3, 15): each view's (v, g), the proprioceptive input of the encoder and the generator."""
+        gripper = self.gripper[:, None, :].expand(-1, self.viewpoints.shape[1], -1)
+        return torch.cat([self.viewpoints, gripper], dim=-1)
+
+
+@dataclass
+class GraspBatch:
+    """Grasp transitions sampled from replay."""
+
+    obs: Observation
+    action: torch.Tensor
+    """(B, A) in [-1, 1]."""
+    reward: torch.Tensor
+    """(B,): sparse grasp reward + auxiliary reach reward."""
+    next_obs: Observation
+    """The observation after the action (for a truncated episode, its final observation)."""
+    terminated: torch.Tensor
+    """(B,) bool/float: 1 when the episode ended by a grasp attempt (no bootstrap); 0 when truncated."""
+
+
+@dataclass
+class FixationBatch:
+    """Fixation samples (a one-step contextual bandit): bin-centre observation, chosen point, reward."""
+
+    obs: Observation
+    action: torch.Tensor
+    """(B, 3) in [-1, 1]."""
+    reward: torch.Tensor
+    """(B,): the episode's sparse grasp reward."""
+
+
+def resolve_device(name: str) -> torch.device:
+    """Device name, with "auto" meaning cuda when available, else cpu."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+class APRAgent:
+    """The joint learner: acts with the grasp or fixation policy and updates everything in one step."""
+
+    def __init__(self, config: ModelConfig) -> None:
+        self.config = config
+        self.device = resolve_device(config.device)
+        precision = config.precision
+        if precision == "auto":
+            precision = "bf16" if self.device.type == "cuda" else "fp32"
+        self.autocast_dtype = torch.bfloat16 if precision == "bf16" else None
+
+        with torch.random.fork_rng(devices=[]):  # seeded initialisation without touching global RNG
+            torch.manual_seed(config.seed)
+            self.encoder = TowerEncoder(
+                config.image_channels,
+                config.pose_dim,
+                config.encoder_channels,
+                config.encoder_narrow_channels,
+                config.representation_channels,
+            )
+            self.generator = (
+                ConvDRAWGenerator(
+                    config.image_channels,
+                    config.pose_dim,
+                    config.representation_channels,
+                    config.lstm_channels,
+                    config.latent_channels,
+                    config.canvas_channels,
+                    config.generation_steps,
+                    config.lstm_kernel,
+                )
+                if config.representation
+                else None
+            )
+            grid = config.image_size // 4
+            head_args = dict(
+                channels=tuple(config.head_channels),
+                grid=grid,
+                log_std_bounds=(config.log_std_min, config.log_std_max),
+                init_temperature=config.init_temperature,
+            )
+            self.grasp = PolicyHeads(config.representation_channels, config.grasp_action_dim, **head_args)
+            self.fixation = PolicyHeads(
+                config.representation_channels, config.fixation_action_dim, target_critic=False, **head_args
+            )
+        self.networks = nn.ModuleDict({"encoder": self.encoder, "grasp": self.grasp, "fixation": self.fixation})
+        if self.generator is not None:
+            self.networks["generator"] = self.generator
+        self.networks.to(self.device)
+        if config.channels_last:
+            self.networks.to(memory_format=torch.channels_last)
+        self._encoder: nn.Module = torch.compile(self.encoder) if config.compile else self.encoder
+        self._generator: nn.Module | None = (
+            torch.compile(self.generator) if config.compile and self.generator is not None else self.generator
+        )
+
+        adam = dict(lr=config.sac_lr)
+        critic_params = list(self.grasp.critic.parameters()) + list(self.fixation.critic.parameters())
+        if not config.representation:  # the ablation: the critic losses train the encoder
+            critic_params += list(self.encoder.parameters())
+        self.optimizers: dict[str, torch.optim.Optimizer] = {
+            "critic": torch.optim.Adam(critic_params, **adam),
+            "actor": torch.optim.Adam([*self.grasp.actor.parameters(), *self.fixation.actor.parameters()], **adam),
+            "temperature": torch.optim.Adam([self.grasp.log_alpha, self.fixation.log_alpha], **adam),
+        }
+        if self.generator is not None:
+            gqn_params = [*self.encoder.parameters(), *self.generator.parameters()]
+            self.optimizers["gqn"] = torch.optim.Adam(gqn_params, lr=config.gqn_lr_start)
+
+        self.rng = torch.Generator(self.device).manual_seed(config.seed)  # learner draws
+        self.act_rng = torch.Generator(self.device).manual_seed(config.seed + 1)  # acting draws
+
+    # ------------------------------------------------------------------ helpers
+    def _autocast(self) -> AbstractContextManager[Any]:
+        if self.autocast_dtype is None:
+            return nullcontext()
+        return torch.autocast(self.device.type, dtype=self.autocast_dtype)
+
+    def _views(self, obs: Observation, index: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Gather views per sample: index (B, K) -> images (B, K, C, 64, 64) in [0, 1], poses (B, K, P)."""
+        rows = torch.arange(len(obs), device=self.device)[:, None]
+        images = images_to_float(obs.images[rows, index])
+        if not self.config.channels_last:
+            images = images.contiguous()
+        return images, obs.poses()[rows, index]
+
+    def _scene(self, obs: Observation, context: torch.Tensor, with_grad: int) -> torch.Tensor:
+        """r = r1 + r2 of the context views (B, 2) -> (B, R, 16, 16); the first ``with_grad`` samples
+        are encoded with gradient, the rest without (they only feed the detached RL inputs)."""
+        images, poses = self._views(obs, context)
+        parts = []
+        if with_grad > 0:
+            parts.append(encode_scene(self._encoder, images[:with_grad], poses[:with_grad]))
+        if with_grad < len(obs):
+            with torch.no_grad():
+                parts.append(encode_scene(self._encoder, images[with_grad:], poses[with_grad:]))
+        return torch.cat(parts)
+
+    def _split_context_query(self, batch: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """Per sample, a random query view q in {0, 1, 2}; the other two are the context. (B, 2), (B, 1)."""
+        query = torch.randint(NUM_VIEWS, (batch, 1), generator=self.rng, device=self.device)
+        context = torch.cat([(query + 1) % NUM_VIEWS, (query + 2) % NUM_VIEWS], dim=1)
+        return context, query
+
+    def _first_two(self, batch: int) -> torch.Tensor:
+        return torch.tensor([[0, 1]], device=self.device).expand(batch, 2)
+
+    # ------------------------------------------------------------------ acting
+    @torch.no_grad()
+    def act(
+        self, obs: Mapping[str, Any] | Observation, deterministic: bool = False, policy: Policy = "grasp"
+    ) -> np.ndarray:
+        """Actions for a batch of env observations.
+
+        Args:
+            obs: dict with images uint8 (N, 3, 64, 64, C), viewpoints (N, 3, 6), gripper (N, 9); views 0 and 1
+                are the context (the views are i.i.d. around the fixation point).
+            deterministic: the mean action tanh(mu) (evaluation) instead of a sample.
+            policy: "grasp" (action (N, 4 or 6)) or "fixation" (action (N, 3)).
+
+        Returns:
+            float32 (N, A) in [-1, 1].
+        """
+        obs = obs.to(self.device) if isinstance(obs, Observation) else Observation.from_env(obs, self.device)
+        heads = self.grasp if policy == "grasp" else self.fixation
+        with self._autocast():
+            r = self._scene(obs, self._first_two(len(obs)), with_grad=0)
+            action = heads.actor.mode(r) if deterministic else heads.actor.sample(r, self.act_rng)[0]
+        return action.float().cpu().numpy()
+
+    @torch.no_grad()
+    def predict_view(self, obs: Mapping[str, Any] | Observation, query_view: int = 2) -> np.ndarray:
+        """The generator's prediction of one view from the other two, sampled from the prior (for pictures).
+
+        Returns:
+            float32 (N, 64, 64, C) in [0, 1], HWC like the env's images.
+        """
+        if self.generator is None:
+            raise RuntimeError("the 'w/o representation' ablation has no generator")
+        obs = obs.to(self.device) if isinstance(obs, Observation) else Observation.from_env(obs, self.device)
+        context = torch.tensor([[v for v in range(NUM_VIEWS) if v != query_view]], device=self.device)
+        with self._autocast():
+            r = self._scene(obs, context.expand(len(obs), 2), with_grad=0)
+            query_pose = obs.poses()[:, query_view]
+            noise = torch.randn(
+                self.generator.noise_shape(len(obs), r.shape[-1]), generator=self.act_rng, device=self.device
+            )
+            image = self.generator.sample(r, query_pose, noise)
+        return image.permute(0, 2, 3, 1).float().cpu().numpy()
+
+    # ------------------------------------------------------------------ learning
+    def compute_losses(
+        self, grasp_batch: GraspBatch, fixation_batch: FixationBatch | None, step: int
+    ) -> tuple[dict[str, torch.Tensor], Metrics]:
+        """Every loss of one joint update, from the current parameters (nothing is stepped).
+
+        Returns:
+            losses by name (gqn/elbo, grasp/critic, grasp/actor, grasp/temperature, fixation/...) and metrics.
+        """
+        config = self.config
+        losses: dict[str, torch.Tensor] = {}
+        metrics: Metrics = {}
+        batch = len(grasp_batch.obs)
+        fix_batch = 0 if fixation_batch is None else len(fixation_batch.obs)
+        n_grasp_gqn = min(config.gqn_batch_size, batch) if config.representation else 0
+        n_fix_gqn = min(config.gqn_fixation_batch_size, fix_batch) if config.representation else 0
+        # Ablation: every r gets its gradient (the critics train the encoder); else only the ELBO's samples.
+        grasp_grad = n_grasp_gqn if config.representation else batch
+        fix_grad = n_fix_gqn if config.representation else fix_batch
+
+        with self._autocast():
+            context, query = self._split_context_query(batch)
+            r = self._scene(grasp_batch.obs, context, grasp_grad)
+            with torch.no_grad():
+                r_next = self._scene(grasp_batch.next_obs, self._first_two(batch), with_grad=0)
+            if fixation_batch is not None:
+                fix_context, fix_query = self._split_context_query(fix_batch)
+                r_fix = self._scene(fixation_batch.obs, fix_context, fix_grad)
+
+            if self._generator is not None and n_grasp_gqn + n_fix_gqn > 0:
+                query_images, query_poses = self._views(grasp_batch.obs[:n_grasp_gqn], query[:n_grasp_gqn])
+                r_gqn = r[:n_grasp_gqn]
+                if n_fix_gqn > 0:
+                    fix_images, fix_poses = self._views(fixation_batch.obs[:n_fix_gqn], fix_query[:n_fix_gqn])
+                    query_images = torch.cat([query_images, fix_images])
+                    query_poses = torch.cat([query_poses, fix_poses])
+                    r_gqn = torch.cat([r_gqn, r_fix[:n_fix_gqn]])
+                noise = torch.randn(
+                    self.generator.noise_shape(len(r_gqn), r.shape[-1]),
+                    generator=self.rng,
+                    device=self.device,
+                )
+                losses["gqn/elbo"], gqn_metrics = gqn_elbo_loss(
+                    self._generator,
+                    r_gqn,
+                    query_poses[:, 0],
+                    query_images[:, 0],
+                    pixel_sigma(step, config),
+                    noise,
+                )
+                metrics.update(gqn_metrics)
+
+            # Stop-gradient: the RL losses see r detached, except the ablation's critics.
+            r_critic = r.detach() if config.representation else r
+            losses["grasp/critic"], m = sac_critic_loss(
+                self.grasp,
+                r_critic,
+                grasp_batch.action.float(),
+                grasp_batch.reward.float(),
+                r_next,
+                grasp_batch.terminated.float(),
+                config.gamma,
+                self.rng,
+            )
+            metrics.update({f"grasp/{k}": v for k, v in m.items()})
+            losses["grasp/actor"], log_prob, m = sac_actor_loss(self.grasp, r.detach(), self.rng)
+            metrics.update({f"grasp/{k}": v for k, v in m.items()})
+            losses["grasp/temperature"], m = temperature_loss(self.grasp.log_alpha, log_prob, self.grasp.target_entropy)
+            metrics.update({f"grasp/{k}": v for k, v in m.items()})
+
+            if fixation_batch is not None:
+                r_fix_critic = r_fix.detach() if config.representation else r_fix
+                losses["fixation/critic"], m = bandit_critic_loss(
+                    self.fixation, r_fix_critic, fixation_batch.action.float(), fixation_batch.reward.float()
+                )
+                metrics.update({f"fixation/{k}": v for k, v in m.items()})
+                losses["fixation/actor"], log_prob, m = sac_actor_loss(self.fixation, r_fix.detach(), self.rng)
+                metrics.update({f"fixation/{k}": v for k, v in m.items()})
+                losses["fixation/temperature"], m = temperature_loss(
+                    self.fixation.log_alpha, log_prob, self.fixation.target_entropy
+                )
+                metrics.update({f"fixation/{k}": v for k, v in m.items()})
+        return losses, metrics
+
+    def update(self, grasp_batch: GraspBatch, fixation_batch: FixationBatch | None, step: int) -> dict[str, float]:
+        """One joint step: ELBO + grasp SAC + fixation SAC; ``step`` is the update count (schedules).
+
+        Returns:
+            metrics by name (floats), one host synchronisation.
+        """
+        losses, metrics = self.compute_losses(grasp_batch, fixation_batch, step)
+        for optimizer in self.optimizers.values():
+            optimizer.zero_grad(set_to_none=True)
+        torch.stack(list(losses.values())).sum().backward()
+        if "gqn" in self.optimizers:
+            learning_rate = gqn_learning_rate(step, self.config)
+            for group in self.optimizers["gqn"].param_groups:
+                group["lr"] = learning_rate
+        for optimizer in self.optimizers.values():
+            optimizer.step()
+        soft_update(self.grasp.critic_target, self.grasp.critic, self.config.tau)
+
+        values = torch.stack([v.float() for v in metrics.values()]).tolist()  # one sync
+        result = dict(zip(metrics.keys(), values, strict=True))
+        if "gqn" in self.optimizers:
+            result["gqn/sigma"] = pixel_sigma(step, self.config)
+            result["gqn/lr"] = gqn_learning_rate(step, self.config)
+        return result
+
+    # ------------------------------------------------------------------ checkpoints
+    def state_dict(self) -> dict[str, Any]:
+        """Networks, optimisers and random-generator states: a resumed run continues exactly."""
+        return {
+            "networks": self.networks.state_dict(),
+            "optimizers": {name: opt.state_dict() for name, opt in self.optimizers.items()},
+            "rng": self.rng.get_state(),
+            "act_rng": self.act_rng.get_state(),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.networks.load_state_dict(state["networks"])
+        for name, opt in self.optimizers.items():
+            opt.load_state_dict(state["optimizers"][name])
+        self.rng.set_state(state["rng"])
+        self.act_rng.set_state(state["act_rng"])
+
+    def num_parameters(self) -> dict[str, int]:
+        """Trainable parameter counts per network (the target critics excluded)."""
+        return {
+            name: sum(p.numel() for p in module.parameters() if p.requires_grad)
+            for name, module in self.networks.items()
+        }

@@ -1,0 +1,162 @@
+"""Every size and learning hyperparameter of the APR model, in one place.
+
+Each field carries its source: the APR paper (Zaky et al., section "Method"), GQN (Eslami et al. 2018 and
+its supplementary material), SAC (Haarnoja et al. 2018a/b), or "ours" where the papers are silent (the
+reason is in docs/decisions.md). Schedules are pure functions of the update count so that a resumed run
+continues them exactly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Literal
+
+
+@dataclass
+class ModelConfig:
+    """Sizes, optimiser settings and speed options of the APR learner (paper values by default)."""
+
+    # --- inputs (paper, Method B; set from the environment's spaces) ---
+    image_channels: int = 3
+    """Channels of one view: 3 (RGB) or 4 (RGB + target mask, paper section 4A)."""
+    image_size: int = 64
+    """Side of the (foveated) view in pixels (paper, Method B: 64x64)."""
+    viewpoint_dim: int = 6
+    """v: the six joint angles of the head (paper, Method A)."""
+    gripper_dim: int = 9
+    """g = (x, y, z, sin a, cos a, sin b, cos b, sin c, cos c) (paper, Method B)."""
+    grasp_action_dim: int = 6
+    """Grasp action: 6 (dx, dy, dz, da, db, dc) or 4 (dx, dy, dz, da) (paper, Method A and section 4B)."""
+    fixation_action_dim: int = 3
+    """Fixation action: the 3-D fixation point (paper, Method A)."""
+
+    # --- encoder: the GQN "tower" (Eslami et al. 2018, supplementary Fig. S1) ---
+    encoder_channels: int = 256
+    """Wide layers of the tower (Eslami et al. 2018: 256)."""
+    encoder_narrow_channels: int = 128
+    """Narrow 3x3 layers of the tower (Eslami et al. 2018: 128)."""
+    representation_channels: int = 256
+    """Channels of r_i at 16x16 (paper, Method B: 16x16x256)."""
+
+    # --- generator: ConvDRAW (Eslami et al. 2018, supplementary section "Generator") ---
+    generation_steps: int = 12
+    """Autoregressive generation steps L (paper, Method B; Eslami et al. 2018: 12)."""
+    lstm_channels: int = 128
+    """Hidden channels of the generator and inference ConvLSTMs (Eslami et al. 2018: 128)."""
+    lstm_kernel: int = 5
+    """Kernel of the ConvLSTMs and of the prior/posterior heads (Eslami et al. 2018: 5x5)."""
+    latent_channels: int = 3
+    """Channels of each step's latent z at 16x16 (Eslami et al. 2018: 3)."""
+    canvas_channels: int = 128
+    """Channels of the 64x64 canvas u, written by a 4x4/4 transposed conv (ours; GQN reference: 128)."""
+
+    # --- GQN optimisation (Eslami et al. 2018, supplementary "Optimisation") ---
+    gqn_lr_start: float = 5e-4
+    """Adam learning rate at update 0 (Eslami et al. 2018)."""
+    gqn_lr_end: float = 5e-5
+    """Adam learning rate after annealing (Eslami et al. 2018)."""
+    sigma_start: float = 2.0
+    """Pixel standard deviation of the Gaussian likelihood at update 0 (Eslami et al. 2018)."""
+    sigma_end: float = 0.7
+    """Pixel standard deviation after annealing (Eslami et al. 2018)."""
+    gqn_anneal_updates: int = 200_000
+    """Updates over which sigma and the GQN learning rate anneal linearly (paper/Eslami: 2e5 for sigma;
+    one length for both here so a shorter run scales them together; set it to the run's length)."""
+    gqn_batch_size: int = 36
+    """Grasp-step observations per update that train the ELBO, the first ones of the grasp batch
+    (Eslami et al. 2018: batch 36)."""
+    gqn_fixation_batch_size: int = 4
+    """Fixation observations added to the ELBO batch (ours: ~1 fixation view per 9 grasp views)."""
+
+    # --- policy heads (paper, Method B) ---
+    head_channels: tuple[int, ...] = (128, 64, 32)
+    """Conv block of every actor and critic: 3x3 kernels with these channels (paper, Method B)."""
+    log_std_min: float = -20.0
+    """Clamp of the actor's log standard deviation, low end (Haarnoja et al. 2018 reference code: -20)."""
+    log_std_max: float = 2.0
+    """Clamp of the actor's log standard deviation, high end (Haarnoja et al. 2018 reference code: 2)."""
+
+    # --- SAC (Haarnoja et al. 2018a/b) ---
+    sac_lr: float = 3e-4
+    """Adam learning rate of actors, critics and temperatures (Haarnoja et al. 2018)."""
+    gamma: float = 0.99
+    """Discount of the grasp policy (Haarnoja et al. 2018). The fixation bandit has no bootstrap."""
+    tau: float = 0.005
+    """Polyak rate of the soft target-critic update (Haarnoja et al. 2018)."""
+    init_temperature: float = 1.0
+    """Initial entropy temperature alpha (Haarnoja et al. 2018b reference code: 1.0)."""
+    batch_size: int = 256
+    """Grasp transitions per update (Haarnoja et al. 2018: 256)."""
+    fixation_batch_size: int = 256
+    """Fixation (bandit) samples per update (Haarnoja et al. 2018: 256)."""
+
+    # --- ablation (paper, section 4C) ---
+    representation: bool = True
+    """True: the encoder learns from the ELBO only (RL sees r detached). False: the "w/o representation"
+    ablation: no generator; the critic losses train the encoder (paper, section 4C)."""
+
+    # --- run, precision and speed (ours) ---
+    seed: int = 0
+    """Seeds parameter initialisation and every draw of the learner (context/query choice, noise)."""
+    device: str = "auto"
+    """"auto" (cuda when available, else cpu), "cpu", "cuda", "cuda:1", ..."""
+    precision: Literal["auto", "fp32", "bf16"] = "auto"
+    """Autocast dtype of the forward passes; "auto" = bf16 on CUDA, fp32 on CPU. Losses stay fp32."""
+    channels_last: bool = False
+    """Use the channels-last memory format for convolutions (faster with bf16 on recent GPUs)."""
+    compile: bool = False
+    """Wrap the encoder and generator in torch.compile."""
+
+    @classmethod
+    def tiny(cls, **overrides: object) -> ModelConfig:
+        """A few-channel variant for tests and CPU smoke runs (same structure, tiny sizes)."""
+        sizes: dict[str, object] = dict(
+            encoder_channels=16,
+            encoder_narrow_channels=8,
+            representation_channels=16,
+            generation_steps=3,
+            lstm_channels=16,
+            latent_channels=2,
+            lstm_kernel=3,
+            canvas_channels=8,
+            head_channels=(16, 8, 8),
+            gqn_anneal_updates=1_000,
+            gqn_batch_size=8,
+            gqn_fixation_batch_size=2,
+            batch_size=16,
+            fixation_batch_size=8,
+            device="cpu",
+        )
+        sizes.update(overrides)
+        return cls(**sizes)  # type: ignore[arg-type]
+
+    @classmethod
+    def preset(cls, name: Literal["paper", "tiny"], **overrides: object) -> ModelConfig:
+        """The paper's sizes or the tiny ones, with field overrides."""
+        return cls.tiny(**overrides) if name == "tiny" else cls(**overrides)  # type: ignore[arg-type]
+
+    def replace(self, **changes: object) -> ModelConfig:
+        """A copy with some fields changed."""
+        return dataclasses.replace(self, **changes)  # type: ignore[arg-type]
+
+    @property
+    def pose_dim(self) -> int:
+        """Length of one view's proprioceptive vector (v, g) tiled into the encoder and generator."""
+        return self.viewpoint_dim + self.gripper_dim
+
+
+def _linear_anneal(update: int, start: float, end: float, length: int) -> float:
+    """start -> end linearly over ``length`` updates, then constant (Eslami et al. 2018)."""
+    fraction = min(max(update, 0) / max(length, 1), 1.0)
+    return start + (end - start) * fraction
+
+
+def pixel_sigma(update: int, config: ModelConfig) -> float:
+    """Standard deviation of the generator's Gaussian pixel likelihood at this update count."""
+    return _linear_anneal(update, config.sigma_start, config.sigma_end, config.gqn_anneal_updates)
+
+
+def gqn_learning_rate(update: int, config: ModelConfig) -> float:
+    """Adam learning rate of the encoder and generator at this update count."""
+    return _linear_anneal(update, config.gqn_lr_start, config.gqn_lr_end, config.gqn_anneal_updates)

@@ -1,0 +1,130 @@
+"""Policy heads on top of the scene representation r: a tanh-Gaussian actor and twin Q critics.
+
+Each output is a conv block (3x3 kernels, 128/64/32 channels, ReLU) then one fully connected layer
+(paper, Method B). The critic sees the action tiled over r's 16x16 grid and concatenated to r's channels,
+so that Q is a nonlinear function of the action.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from apr.model.encoder import tile
+
+
+def conv_block(in_channels: int, channels: tuple[int, ...]) -> nn.Sequential:
+    """3x3 convolutions (padding 1, stride 1), ReLU after each (paper, Method B)."""
+    layers: list[nn.Module] = []
+    for out_channels in channels:
+        layers += [nn.Conv2d(in_channels, out_channels, kernel_size=3, padding=1), nn.ReLU()]
+        in_channels = out_channels
+    return nn.Sequential(*layers, nn.Flatten())
+
+
+class Actor(nn.Module):
+    """pi(a | r): conv block + linear -> mean and log-std of a Gaussian, squashed by tanh into [-1, 1]^A."""
+
+    def __init__(
+        self,
+        representation_channels: int,
+        action_dim: int,
+        channels: tuple[int, ...] = (128, 64, 32),
+        grid: int = 16,
+        log_std_bounds: tuple[float, float] = (-20.0, 2.0),
+    ) -> None:
+        super().__init__()
+        self.trunk = conv_block(representation_channels, channels)
+        self.out = nn.Linear(channels[-1] * grid * grid, 2 * action_dim)
+        self.log_std_min, self.log_std_max = log_std_bounds
+
+    def forward(self, r: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """r: (B, R, 16, 16). Returns the pre-tanh mean and log-std, each (B, A), fp32."""
+        mean, log_std = self.out(self.trunk(r)).float().chunk(2, dim=-1)
+        return mean, log_std.clamp(self.log_std_min, self.log_std_max)
+
+    def sample(self, r: torch.Tensor, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """A reparameterised sample and its log-probability: action (B, A) in (-1, 1), log_prob (B,)."""
+        mean, log_std = self(r)
+        noise = torch.randn(mean.shape, generator=generator, device=mean.device, dtype=mean.dtype)
+        pre_tanh = mean + log_std.exp() * noise
+        gaussian_log_prob = (-0.5 * noise**2 - log_std - 0.5 * math.log(2 * math.pi)).sum(dim=-1)
+        # log|d tanh(u)/du| = log(1 - tanh(u)^2) = 2 (log 2 - u - softplus(-2u)), the stable form.
+        log_det = (2 * (math.log(2) - pre_tanh - F.softplus(-2 * pre_tanh))).sum(dim=-1)
+        return torch.tanh(pre_tanh), gaussian_log_prob - log_det
+
+    def mode(self, r: torch.Tensor) -> torch.Tensor:
+        """The deterministic action tanh(mean), (B, A), used for evaluation."""
+        return torch.tanh(self(r)[0])
+
+
+class Critic(nn.Module):
+    """Q(r, a): the action tiled over the grid and concatenated to r, conv block + linear -> (B,)."""
+
+    def __init__(
+        self,
+        representation_channels: int,
+        action_dim: int,
+        channels: tuple[int, ...] = (128, 64, 32),
+        grid: int = 16,
+    ) -> None:
+        super().__init__()
+        self.trunk = conv_block(representation_channels + action_dim, channels)
+        self.out = nn.Linear(channels[-1] * grid * grid, 1)
+
+    def forward(self, r: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """r: (B, R, 16, 16); action: (B, A). Returns Q: (B,) fp32."""
+        x = torch.cat([r, tile(action.to(r.dtype), r.shape[-1])], dim=1)
+        return self.out(self.trunk(x)).float().squeeze(-1)
+
+
+class TwinCritic(nn.Module):
+    """Two independent Q networks (clipped double Q, Fujimoto et al. 2018; Haarnoja et al. 2018b)."""
+
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        super().__init__()
+        self.q1 = Critic(*args, **kwargs)  # type: ignore[arg-type]
+        self.q2 = Critic(*args, **kwargs)  # type: ignore[arg-type]
+
+    def forward(self, r: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Both Q estimates, (B,) each."""
+        return self.q1(r, action), self.q2(r, action)
+
+
+class PolicyHeads(nn.Module):
+    """Everything one SAC policy owns: actor, twin critics, their target copies and the temperature."""
+
+    def __init__(
+        self,
+        representation_channels: int,
+        action_dim: int,
+        channels: tuple[int, ...] = (128, 64, 32),
+        grid: int = 16,
+        log_std_bounds: tuple[float, float] = (-20.0, 2.0),
+        init_temperature: float = 1.0,
+        target_critic: bool = True,
+    ) -> None:
+        super().__init__()
+        self.action_dim = action_dim
+        self.actor = Actor(representation_channels, action_dim, channels, grid, log_std_bounds)
+        self.critic = TwinCritic(representation_channels, action_dim, channels, grid)
+        # Only a bootstrapping critic needs a target copy; the fixation bandit regresses its reward.
+        self.critic_target = copy.deepcopy(self.critic).requires_grad_(False) if target_critic else None
+        self.log_alpha = nn.Parameter(torch.tensor(math.log(init_temperature)))
+
+    @property
+    def target_entropy(self) -> float:
+        """-dim(A) (Haarnoja et al. 2018b)."""
+        return -float(self.action_dim)
+
+    def rl_parameters(self) -> dict[str, list[nn.Parameter]]:
+        """Trainable parameters by optimiser: actor, critic, temperature (the targets are not trained)."""
+        return {
+            "actor": list(self.actor.parameters()),
+            "critic": list(self.critic.parameters()),
+            "temperature": [self.log_alpha],
+        }

@@ -1,0 +1,265 @@
+"""The APR model at tiny sizes: shapes, stop-gradient, ablation, schedules, determinism, checkpoints."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+import torch
+
+from apr.model import (
+    APRAgent,
+    ConvDRAWGenerator,
+    FixationBatch,
+    GraspBatch,
+    ModelConfig,
+    Observation,
+    PolicyHeads,
+    TowerEncoder,
+    encode_scene,
+    gqn_learning_rate,
+    images_to_float,
+    pixel_sigma,
+)
+
+
+def random_observation(batch: int, channels: int, rng: np.random.Generator) -> Observation:
+    return Observation.from_env(
+        {
+            "images": rng.integers(0, 256, (batch, 3, 64, 64, channels), dtype=np.uint8),
+            "viewpoints": rng.uniform(-np.pi, np.pi, (batch, 3, 6)).astype(np.float32),
+            "gripper": rng.uniform(-1, 1, (batch, 9)).astype(np.float32),
+        }
+    )
+
+
+def random_batches(config: ModelConfig, seed: int = 0) -> tuple[GraspBatch, FixationBatch]:
+    rng = np.random.default_rng(seed)
+    batch, fix_batch, channels = config.batch_size, config.fixation_batch_size, config.image_channels
+    grasp = GraspBatch(
+        obs=random_observation(batch, channels, rng),
+        action=torch.from_numpy(rng.uniform(-1, 1, (batch, config.grasp_action_dim)).astype(np.float32)),
+        reward=torch.from_numpy(rng.uniform(0, 1, batch).astype(np.float32)),
+        next_obs=random_observation(batch, channels, rng),
+        terminated=torch.from_numpy(rng.integers(0, 2, batch).astype(np.float32)),
+    )
+    fixation = FixationBatch(
+        obs=random_observation(fix_batch, channels, rng),
+        action=torch.from_numpy(rng.uniform(-1, 1, (fix_batch, 3)).astype(np.float32)),
+        reward=torch.from_numpy(rng.integers(0, 2, fix_batch).astype(np.float32)),
+    )
+    return grasp, fixation
+
+
+def test_images_to_float_is_channels_first_in_unit_range() -> None:
+    images = torch.randint(0, 256, (2, 3, 64, 64, 4), dtype=torch.uint8)
+    out = images_to_float(images)
+    assert out.shape == (2, 3, 4, 64, 64) and out.dtype == torch.float32
+    assert torch.equal(out[1, 2, 3], images[1, 2, :, :, 3].float() / 255)
+    assert out.min() >= 0.0 and out.max() <= 1.0
+
+
+def test_paper_tower_architecture() -> None:
+    config = ModelConfig(device="cpu")
+    encoder = TowerEncoder(3, config.pose_dim)
+    kernels = [(m.kernel_size, m.stride, m.out_channels) for m in encoder.modules() if isinstance(m, torch.nn.Conv2d)]
+    assert kernels == [
+        ((2, 2), (2, 2), 256),
+        ((2, 2), (2, 2), 256),
+        ((3, 3), (1, 1), 128),
+        ((2, 2), (2, 2), 256),
+        ((3, 3), (1, 1), 256),
+        ((3, 3), (1, 1), 128),
+        ((3, 3), (1, 1), 256),
+        ((1, 1), (1, 1), 256),
+    ]
+    assert encoder.skip2.in_channels == 256 + 6 + 9  # v and g tiled and concatenated at 16x16
+    with torch.no_grad():
+        r = encode_scene(encoder, torch.rand(1, 2, 3, 64, 64), torch.randn(1, 2, config.pose_dim))
+    assert r.shape == (1, 256, 16, 16)
+
+
+@pytest.mark.parametrize("channels", [3, 4])
+@pytest.mark.parametrize("grasp_dim", [4, 6])
+def test_output_shapes(channels: int, grasp_dim: int) -> None:
+    config = ModelConfig.tiny(image_channels=channels, grasp_action_dim=grasp_dim)
+    agent = APRAgent(config)
+    grasp, fixation = random_batches(config)
+    batch, size = len(grasp.obs), config.image_size // 4
+
+    images = images_to_float(grasp.obs.images[:, :2])
+    r = encode_scene(agent.encoder, images, grasp.obs.poses()[:, :2])
+    assert r.shape == (batch, config.representation_channels, size, size)
+
+    noise = torch.randn(agent.generator.noise_shape(batch, size))
+    assert noise.shape == (config.generation_steps, batch, config.latent_channels, size, size)
+    query = images_to_float(grasp.obs.images[:, 2:])[:, 0]
+    mean, kl = agent.generator(r, grasp.obs.poses()[:, 2], query, noise)
+    assert mean.shape == (batch, channels, 64, 64) and kl.shape == (batch,)
+    assert (kl >= 0).all() and mean.min() >= 0 and mean.max() <= 1
+    assert agent.generator.sample(r, grasp.obs.poses()[:, 2], noise).shape == (batch, channels, 64, 64)
+
+    for heads, dim in [(agent.grasp, grasp_dim), (agent.fixation, 3)]:
+        action, log_prob = heads.actor.sample(r)
+        assert action.shape == (batch, dim) and log_prob.shape == (batch,)
+        assert action.abs().max() < 1
+        q1, q2 = heads.critic(r, action)
+        assert q1.shape == q2.shape == (batch,)
+
+    env_obs = {"images": grasp.obs.images.numpy(), "viewpoints": grasp.obs.viewpoints.numpy(),
+               "gripper": grasp.obs.gripper.numpy()}  # fmt: skip
+    for deterministic in (False, True):
+        action = agent.act(env_obs, deterministic=deterministic)
+        assert action.shape == (batch, grasp_dim) and action.dtype == np.float32
+        assert np.abs(action).max() <= 1
+        assert agent.act(env_obs, deterministic, policy="fixation").shape == (batch, 3)
+    single = {k: v[0] for k, v in env_obs.items()}  # one unbatched observation
+    assert agent.act(single).shape == (1, grasp_dim)
+    assert agent.predict_view(env_obs).shape == (batch, 64, 64, channels)
+
+
+def test_deterministic_action_is_the_tanh_mean() -> None:
+    agent = APRAgent(ModelConfig.tiny())
+    grasp, _ = random_batches(agent.config)
+    first, second = agent.act(grasp.obs, deterministic=True), agent.act(grasp.obs, deterministic=True)
+    np.testing.assert_array_equal(first, second)
+    assert not np.array_equal(agent.act(grasp.obs), agent.act(grasp.obs))
+
+
+def _grads(module: torch.nn.Module) -> list[torch.Tensor | None]:
+    return [p.grad for p in module.parameters()]
+
+
+def _backward(agent: APRAgent, loss: torch.Tensor) -> None:
+    agent.networks.zero_grad(set_to_none=True)
+    loss.backward(retain_graph=True)
+
+
+def test_rl_losses_leave_the_encoder_alone_and_the_elbo_leaves_the_heads_alone() -> None:
+    agent = APRAgent(ModelConfig.tiny())
+    losses, _ = agent.compute_losses(*random_batches(agent.config), step=0)
+    assert set(losses) == {
+        "gqn/elbo",
+        *(f"{policy}/{loss}" for policy in ("grasp", "fixation") for loss in ("critic", "actor", "temperature")),
+    }
+    rl_total = sum(loss for name, loss in losses.items() if name != "gqn/elbo")
+    _backward(agent, rl_total)
+    assert all(g is None for g in _grads(agent.encoder)), "an RL loss reached the encoder"
+    assert all(g is None for g in _grads(agent.generator))
+    assert any(g is not None and g.abs().sum() > 0 for g in _grads(agent.grasp.critic))
+
+    _backward(agent, losses["gqn/elbo"])
+    for heads in (agent.grasp, agent.fixation):
+        assert all(g is None for g in _grads(heads)), "the ELBO reached a policy head"
+    assert all(g is not None for g in _grads(agent.encoder))
+    assert sum(g.abs().sum() for g in _grads(agent.encoder)) > 0
+
+    # Within SAC: the actor loss moves the actor only, the critic loss the critics only.
+    _backward(agent, losses["grasp/actor"])
+    assert all(g is None for g in _grads(agent.grasp.critic)) and agent.grasp.log_alpha.grad is None
+    assert all(g is not None for g in _grads(agent.grasp.actor))
+    _backward(agent, losses["grasp/critic"])
+    assert all(g is None for g in _grads(agent.grasp.actor))
+    _backward(agent, losses["grasp/temperature"])
+    assert agent.grasp.log_alpha.grad is not None and all(g is None for g in _grads(agent.grasp.actor))
+
+
+def test_without_representation_the_critics_train_the_encoder() -> None:
+    agent = APRAgent(ModelConfig.tiny(representation=False))
+    assert agent.generator is None and "gqn" not in agent.optimizers
+    losses, _ = agent.compute_losses(*random_batches(agent.config), step=0)
+    assert "gqn/elbo" not in losses
+    for name in ("grasp/critic", "fixation/critic"):
+        _backward(agent, losses[name])
+        grads = _grads(agent.encoder)
+        assert all(g is not None for g in grads) and sum(g.abs().sum() for g in grads) > 0, name
+    for name in ("grasp/actor", "fixation/actor"):
+        _backward(agent, losses[name])
+        assert all(g is None for g in _grads(agent.encoder)), name
+
+    before = [p.detach().clone() for p in agent.encoder.parameters()]
+    agent.update(*random_batches(agent.config), step=0)
+    assert any(not torch.equal(b, p) for b, p in zip(before, agent.encoder.parameters(), strict=True))
+
+
+def test_update_trains_every_part_and_moves_the_targets_slowly() -> None:
+    agent = APRAgent(ModelConfig.tiny())
+    snapshot = {name: p.detach().clone() for name, p in agent.networks.named_parameters()}
+    metrics = agent.update(*random_batches(agent.config), step=0)
+    assert all(np.isfinite(v) for v in metrics.values())
+    assert metrics["gqn/sigma"] == 2.0 and metrics["gqn/lr"] == pytest.approx(5e-4)
+    changed = {name for name, p in agent.networks.named_parameters() if not torch.equal(snapshot[name], p)}
+    for prefix in (
+        "encoder.",
+        "generator.",
+        "grasp.actor.",
+        "grasp.critic.",
+        "fixation.actor.",
+        "fixation.critic.",
+    ):
+        assert any(name.startswith(prefix) for name in changed), prefix
+    assert {"grasp.log_alpha", "fixation.log_alpha"} <= changed
+    # Polyak: target <- target + tau (critic - target), with the critic after its step.
+    tau, online = agent.config.tau, agent.grasp.critic
+    for name, p in agent.grasp.critic_target.named_parameters():
+        old = snapshot[f"grasp.critic_target.{name}"]
+        torch.testing.assert_close(p, old + tau * (online.get_parameter(name) - old))
+        assert not torch.equal(p, old)
+
+
+def test_schedules_are_pure_functions_of_the_update_count() -> None:
+    config = ModelConfig(gqn_anneal_updates=1000)
+    assert pixel_sigma(0, config) == 2.0 and pixel_sigma(500, config) == pytest.approx(1.35)
+    assert pixel_sigma(1000, config) == pytest.approx(0.7)
+    assert pixel_sigma(10**6, config) == pytest.approx(0.7)
+    assert gqn_learning_rate(0, config) == 5e-4 and gqn_learning_rate(2000, config) == pytest.approx(5e-5)
+    sigmas = [pixel_sigma(step, config) for step in range(0, 1200, 100)]
+    assert sigmas == sorted(sigmas, reverse=True)
+
+
+def test_context_and_query_views_are_disjoint_and_all_used() -> None:
+    agent = APRAgent(ModelConfig.tiny())
+    context, query = agent._split_context_query(300)
+    assert not (context == query).any() and (context[:, 0] != context[:, 1]).all()
+    assert set(query.flatten().tolist()) == {0, 1, 2}
+
+
+def test_same_seed_same_losses() -> None:
+    def run(seed: int) -> list[dict[str, float]]:
+        agent = APRAgent(ModelConfig.tiny(seed=seed))
+        return [agent.update(*random_batches(agent.config, seed=step), step=step) for step in range(3)]
+
+    first = run(seed=0)
+    assert first == run(seed=0)
+    assert first != run(seed=1)
+
+
+def test_a_loaded_checkpoint_continues_exactly() -> None:
+    config = ModelConfig.tiny()
+    agent = APRAgent(config)
+    agent.update(*random_batches(config, seed=0), step=0)
+    state = copy.deepcopy(agent.state_dict())  # state_dict() holds references, like torch's
+    expected = agent.update(*random_batches(config, seed=1), step=1)
+
+    resumed = APRAgent(config.replace(seed=123))  # a different initialisation, overwritten by the checkpoint
+    resumed.load_state_dict(state)
+    assert resumed.update(*random_batches(config, seed=1), step=1) == expected
+
+
+def test_policy_heads_have_the_paper_block() -> None:
+    heads = PolicyHeads(256, 6)
+    convs = [m for m in heads.actor.modules() if isinstance(m, torch.nn.Conv2d)]
+    assert [(c.kernel_size, c.out_channels) for c in convs] == [((3, 3), 128), ((3, 3), 64), ((3, 3), 32)]
+    assert heads.actor.out.in_features == 32 * 16 * 16 and heads.actor.out.out_features == 2 * 6
+    assert heads.critic.q1.trunk[0].in_channels == 256 + 6  # the action tiled over r
+    assert heads.target_entropy == -6.0
+
+
+def test_paper_generator_sizes() -> None:
+    generator = ConvDRAWGenerator(4, 15)
+    assert generator.steps == 12
+    assert generator.generator_core.gates.kernel_size == (5, 5)
+    assert generator.generator_core.gates.out_channels == 4 * 128
+    assert generator.prior_head.out_channels == 2 * 3
+    assert generator.write.stride == (4, 4) and generator.to_image.out_channels == 4
