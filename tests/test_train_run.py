@@ -9,11 +9,14 @@ import os
 import signal
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from apr.cli import main
 from apr.train.config import TrainConfig, preset
+from apr.train.rollout import run_round
 from apr.train.trainer import METRICS_COLUMNS, Trainer, latest_checkpoint
+from apr.train.workers import EnvWorkers
 
 # Columns that depend on the wall clock, not on the computation.
 TIMING_COLUMNS = {"wall_s", "grasps_per_min"}
@@ -108,3 +111,39 @@ def test_a_killed_worker_is_replaced_and_the_run_finishes(tmp_path: Path):
     rows = read_metrics(run)
     assert killed and int(rows[-1]["lost_episodes"]) == 1
     assert int(rows[-1]["grasps"]) == 3  # the lost episode does not count; the run still did its 3
+
+
+def test_signs_of_life_reach_reward_rises_above_a_random_policy(tmp_path: Path):
+    """The simplest setting: 4-DoF, the environment's target, tiny networks, 12 grasps (4 random, then 120 joint
+    updates). Afterwards the deterministic grasp policy's reach return (metres of progress of the tool tip toward
+    the fixated target) on 6 training episodes beats a uniformly random policy's on the same episodes.
+
+    What it shows: experience flows from the workers through replay into the joint GQN + SAC update, and the
+    policy improves on the reward it is given. Most of what a policy learns this early is to move toward the
+    target, mostly down; it says nothing yet about grasp success. ``init_temperature`` is lowered to 0.05:
+    with the paper's 1.0 the entropy bonus outweighs a reach reward of at most ~0.1 per step for thousands of
+    updates (the temperature falls about 3e-4 per update).
+    """
+    base = preset("smoke")
+    config = dataclasses.replace(
+        base, env=dataclasses.replace(base.env, target="env", dof=4, renderer="tiny"),
+        model=dataclasses.replace(base.model, init_temperature=0.05), workers=2, total_grasps=12, random_grasps=4,
+        updates_per_step=1.0, eval_every_grasps=0, eval_episodes=1, checkpoint_every_grasps=0, log_every_grasps=4,
+        image_every_grasps=0, runs_dir=tmp_path, run_name="signs-of-life",
+    )  # fmt: skip
+    trainer = Trainer(config)
+    trainer.train()
+    rng = np.random.default_rng(0)
+    policies = {
+        "trained": lambda observations, phase: trainer.agent.act(observations, deterministic=True, policy=phase),
+        "random": lambda observations, phase: rng.uniform(-1, 1, (len(observations["images"]), 4)).astype(np.float32),
+    }
+    seeds = list(range(500, 506))
+    returns = {}
+    with EnvWorkers(2, config.env.env_id, config.env.make_kwargs("train")) as workers:
+        for name, policy in policies.items():
+            rounds = [run_round(workers, seeds[k : k + 2], policy, 4, False) for k in range(0, len(seeds), 2)]
+            returns[name] = np.array([result.reach_return for results in rounds for result in results])
+    print({name: values.round(3).tolist() for name, values in returns.items()})
+    assert returns["trained"].mean() > returns["random"].mean() + 0.15
+    assert (returns["trained"] > returns["random"]).sum() >= 5

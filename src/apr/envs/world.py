@@ -126,8 +126,10 @@ class GraspWorld:
         """Step until every object in ``uids`` is at rest (or ``settle_steps_max`` steps)."""
         for _ in range(0, OBJECTS.settle_steps_max, OBJECTS.settle_check_every):
             self.step_simulation(OBJECTS.settle_check_every)
-            speeds = [np.abs(np.concatenate(self.client.getBaseVelocity(uid))).max() for uid in uids]
-            if max(speeds, default=0.0) < OBJECTS.settle_speed:
+            velocities = [self.client.getBaseVelocity(uid) for uid in uids]
+            moving = any(np.abs(linear).max() >= OBJECTS.settle_speed for linear, _ in velocities)
+            turning = any(np.abs(angular).max() >= OBJECTS.settle_spin for _, angular in velocities)
+            if not (moving or turning):
                 return
 
     def _in_tray(self, uid: int) -> bool:

@@ -17,6 +17,7 @@ import csv
 import dataclasses
 import json
 import math
+import os
 import signal
 import time
 from dataclasses import dataclass, field
@@ -108,6 +109,8 @@ class Trainer:
             )
         self.replay = ReplayBuffer(config.replay_capacity, spec)
         self.agent = APRAgent(config.model)
+        if self.agent.device.type == "cpu":  # leave the env workers their cores (docs/decisions.md)
+            torch.set_num_threads(max(1, (os.cpu_count() or 1) - config.workers))
         self.rng = np.random.default_rng(config.seed)
         self.progress = Progress()
         self._recorder = _Recorder(self.replay)
