@@ -5,6 +5,7 @@ three views are made.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import gymnasium as gym
@@ -58,6 +59,8 @@ class GraspEnv(gym.Env):
         self._grasp_steps = 0
         self._tip_distance = 0.0
         self._episode_over = True
+        self.on_grasp_start: Callable[[GraspEnv], None] | None = None
+        """Called with the env when a grasp starts, before the fingers close (e.g. to picture the pre-grasp pose)."""
 
     # ------------------------------------------------------------------------------------------------ API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -93,6 +96,8 @@ class GraspEnv(gym.Env):
         attempted = bool(tip[2] <= GRASP.grasp_height)
         success, lifted = False, 0
         if attempted:
+            if self.on_grasp_start is not None:
+                self.on_grasp_start(self)
             self.world.arm.close_and_lift(self.world.step_simulation)
             outcome = self.task.grasp_outcome(self.world, tip, self.fixation_point)
             success, lifted = outcome.success, len(outcome.lifted)

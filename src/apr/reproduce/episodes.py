@@ -140,20 +140,13 @@ def gripper_close_ups(env: GraspEnv) -> GraspStart:
 
 @contextlib.contextmanager
 def grasp_start_capture(env: GraspEnv) -> Iterator[list[GraspStart]]:
-    """Collect a :class:`GraspStart` each time ``env`` starts a grasp (its arm's ``close_and_lift``)."""
-    arm = env.world.arm
+    """Collect a :class:`GraspStart` each time ``env`` starts a grasp (through its ``on_grasp_start`` hook)."""
     captured: list[GraspStart] = []
-    original = arm.close_and_lift
-
-    def close_and_lift(step_simulation: Callable[..., None]) -> None:
-        captured.append(gripper_close_ups(env))
-        original(step_simulation)
-
-    arm.close_and_lift = close_and_lift  # this arm object only
+    env.on_grasp_start = lambda started: captured.append(gripper_close_ups(started))
     try:
         yield captured
     finally:
-        del arm.close_and_lift  # the class's method again
+        env.on_grasp_start = None
 
 
 def run_episode(env: gym.Env, policy: ActionSource, seed: int, max_grasp_steps: int | None = None) -> EpisodeRecord:
