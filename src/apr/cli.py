@@ -73,33 +73,32 @@ Command = (
 )
 
 
+HANDLERS = {
+    EvalArgs: train_command.evaluate,
+    PresetsArgs: train_command.list_presets,
+    RenderArgs: render_command.run,
+    Table1Args: campaign.run,
+    PackageArgs: policies.run_package,
+    PlotArgs: plot.run,
+    FiguresArgs: figures.run,
+    DemoArgs: demo.run,
+    EnvBenchArgs: env_bench.run,
+    LearnerBenchArgs: learner_bench.run,
+}
+"""What each parsed command runs (a group's chosen subcommand runs its own handler)."""
+
+
 def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["train"]:  # its defaults depend on --preset, so it parses its own arguments
         train_command.train(argv[1:])
         return
     command = tyro.cli(Command, args=argv, config=(tyro.conf.OmitSubcommandPrefixes,), description=__doc__)
-    if isinstance(command, EvalArgs):
-        train_command.evaluate(command)
-    elif isinstance(command, PresetsArgs):
-        train_command.list_presets(command)
-    elif isinstance(command, RenderArgs):
-        render_command.run(command)
+    if isinstance(command, BenchArgs):
+        command = command.benchmark
     elif isinstance(command, ReproduceArgs):
-        if isinstance(command.task, Table1Args):
-            campaign.run(command.task)
-        else:
-            policies.run_package(command.task)
-    elif isinstance(command, PlotArgs):
-        plot.run(command)
-    elif isinstance(command, FiguresArgs):
-        figures.run(command)
-    elif isinstance(command, DemoArgs):
-        demo.run(command)
-    elif isinstance(command.benchmark, EnvBenchArgs):
-        env_bench.run(command.benchmark)
-    else:
-        learner_bench.run(command.benchmark)
+        command = command.task
+    HANDLERS[type(command)](command)
 
 
 if __name__ == "__main__":
