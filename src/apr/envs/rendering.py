@@ -1,7 +1,8 @@
 """Renderer choice and cameras: pybullet's EGL plugin when it loads, TinyRenderer otherwise.
 
-EGL renders on the GPU where there is one, or through Mesa's llvmpipe on a CPU machine (about twice
-TinyRenderer's speed there). ``renderer="auto"`` tries EGL and falls back to TinyRenderer.
+EGL renders on the GPU where there is one, or through Mesa's llvmpipe on a CPU machine (there, the
+environments step 1.56 times as fast as with TinyRenderer: docs/benchmarks.md). ``renderer="auto"`` tries EGL and
+falls back to TinyRenderer.
 """
 
 from __future__ import annotations
