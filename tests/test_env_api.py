@@ -15,8 +15,8 @@ from gymnasium.utils.env_checker import check_env
 from apr.envs import ActiveGraspEnv, PassiveGraspEnv
 
 # The learned-fixation workspace, as the ActiveGraspEnv docstring states it (m).
-WORKSPACE_LOW = np.array([0.35, -0.25, -0.2])
-WORKSPACE_HIGH = np.array([0.85, 0.30, 0.1])
+WORKSPACE_LOW = np.array([0.38, -0.2, -0.2])
+WORKSPACE_HIGH = np.array([0.75, 0.2, -0.05])
 GRASP_HEIGHT = -0.115
 
 

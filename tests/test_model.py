@@ -30,6 +30,7 @@ def random_observation(batch: int, channels: int, rng: np.random.Generator) -> O
             "images": rng.integers(0, 256, (batch, 3, 64, 64, channels), dtype=np.uint8),
             "viewpoints": rng.uniform(-np.pi, np.pi, (batch, 3, 6)).astype(np.float32),
             "gripper": rng.uniform(-1, 1, (batch, 9)).astype(np.float32),
+            "fixation": rng.uniform(-0.5, 0.5, (batch, 3)).astype(np.float32),
         }
     )
 
@@ -108,7 +109,7 @@ def test_output_shapes(channels: int, grasp_dim: int) -> None:
         assert q1.shape == q2.shape == (batch,)
 
     env_obs = {"images": grasp.obs.images.numpy(), "viewpoints": grasp.obs.viewpoints.numpy(),
-               "gripper": grasp.obs.gripper.numpy()}  # fmt: skip
+               "gripper": grasp.obs.gripper.numpy(), "fixation": grasp.obs.fixation.numpy()}  # fmt: skip
     for deterministic in (False, True):
         action = agent.act(env_obs, deterministic=deterministic)
         assert action.shape == (batch, grasp_dim) and action.dtype == np.float32
@@ -136,8 +137,9 @@ def _backward(agent: APRAgent, loss: torch.Tensor) -> None:
     loss.backward(retain_graph=True)
 
 
-def test_rl_losses_leave_the_encoder_alone_and_the_elbo_leaves_the_heads_alone() -> None:
-    agent = APRAgent(ModelConfig.tiny())
+@pytest.mark.parametrize("proprioception", [False, True])
+def test_rl_losses_leave_the_encoder_alone_and_the_elbo_leaves_the_heads_alone(proprioception: bool) -> None:
+    agent = APRAgent(ModelConfig.tiny(heads_see_proprioception=proprioception))
     losses, _ = agent.compute_losses(*random_batches(agent.config), step=0)
     assert set(losses) == {
         "gqn/elbo",
@@ -165,8 +167,9 @@ def test_rl_losses_leave_the_encoder_alone_and_the_elbo_leaves_the_heads_alone()
     assert agent.grasp.log_alpha.grad is not None and all(g is None for g in _grads(agent.grasp.actor))
 
 
-def test_without_representation_the_critics_train_the_encoder() -> None:
-    agent = APRAgent(ModelConfig.tiny(representation=False))
+@pytest.mark.parametrize("proprioception", [False, True])
+def test_without_representation_the_critics_train_the_encoder(proprioception: bool) -> None:
+    agent = APRAgent(ModelConfig.tiny(representation=False, heads_see_proprioception=proprioception))
     assert agent.generator is None and "gqn" not in agent.optimizers
     losses, _ = agent.compute_losses(*random_batches(agent.config), step=0)
     assert "gqn/elbo" not in losses
@@ -263,3 +266,17 @@ def test_paper_generator_sizes() -> None:
     assert generator.generator_core.gates.out_channels == 4 * 128
     assert generator.prior_head.out_channels == 2 * 3
     assert generator.write.stride == (4, 4) and generator.to_image.out_channels == 4
+
+
+def test_heads_that_see_the_proprioception_read_the_gripper_and_the_fixation_point() -> None:
+    """With the flag, moving only g or f changes the actor's action and the critics' Q; without it, neither does
+    (the encoder's r is the same: only the heads' input differs)."""
+    for proprioception in (False, True):
+        agent = APRAgent(ModelConfig.tiny(heads_see_proprioception=proprioception))
+        obs = random_batches(agent.config)[0].obs
+        moved = Observation(obs.images, obs.viewpoints, obs.gripper, obs.fixation + 0.3)
+        with torch.no_grad():
+            r = agent._scene(obs, agent._first_two(len(obs)), with_grad=0)
+            actions = [agent.grasp.actor.mode(agent._head_input(r, o)) for o in (obs, moved)]
+        assert agent._head_input(r, obs).shape[1] == 16 + (15 if proprioception else 0)
+        assert torch.equal(actions[0], actions[1]) != proprioception

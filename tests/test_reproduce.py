@@ -268,8 +268,10 @@ def test_demo_without_a_packaged_checkpoint_runs_an_untrained_policy_and_says_so
 
 def test_a_packaged_checkpoint_dropped_in_is_what_the_demo_runs_and_reports(run_dir: Path, tmp_path: Path):
     packaged = tmp_path / "checkpoints"
-    manifest = package_checkpoint(run_dir, packaged, command="pytest tiny smoke run")
-    assert json.loads(manifest.read_text())["final_eval"]["grasps"] == 2
+    manifest = package_checkpoint(run_dir, packaged, command="pytest tiny smoke run", machine="the test machine")
+    written = json.loads(manifest.read_text())
+    assert written["final_eval"]["grasps"] == 2 and written["machine"] == "the test machine"
+    assert written["train_minutes"] is not None
     trained = load_training_checkpoint(run_checkpoints(run_dir)[-1])
     assert trained.trained, "the tiny run should have made learner updates"
 
@@ -283,4 +285,8 @@ def test_a_packaged_checkpoint_dropped_in_is_what_the_demo_runs_and_reports(run_
     report = result.report.read_text()
     assert "UNTRAINED" not in report
     assert f"**Policy:** packaged checkpoint {manifest.stem} (smoke, 2 grasps)" in report
+    final = written["final_eval"]
+    assert (f"**Training:** trained with `pytest tiny smoke run` for 2 grasps in {written['train_minutes']:.1f} "
+            f"minutes of training on the test machine; measured held-out success at those weights: "
+            f"{final['successes']}/{final['episodes']}") in report  # fmt: skip
     assert iio.imread(tmp_path / "demo" / "fig5_pregrasp.png").ndim == 3

@@ -24,6 +24,7 @@ def observation(value: int) -> dict[str, np.ndarray]:
         "images": np.full(SPEC.image_shape, value % 256, np.uint8),
         "viewpoints": np.full(SPEC.viewpoint_shape, value, np.float32),
         "gripper": np.full(9, value, np.float32),
+        "fixation": np.full(3, value, np.float32),
     }
 
 
@@ -114,7 +115,7 @@ def test_presets_resolve_consistently_and_round_trip(name: str):
 def test_preset_table_matches_the_paper():
     assert set(PRESETS) == {
         "active-target", "passive-target", "active-target-no-logpolar", "active-target-no-representation",
-        "active-learned-6d", "active-learned-4d", "smoke",
+        "active-learned-6d", "active-learned-4d", "cpu-4d", "smoke",
     }  # fmt: skip
     assert preset("passive-target").env.env_id == "apr/PassiveGrasp-v0"
     assert preset("active-target-no-logpolar").env.foveation == "resize"

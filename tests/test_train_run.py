@@ -9,10 +9,10 @@ import os
 import signal
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from apr.cli import main
+from apr.model.agent import APRAgent
 from apr.train.config import TrainConfig, preset
 from apr.train.rollout import run_round
 from apr.train.trainer import METRICS_COLUMNS, Trainer, latest_checkpoint
@@ -113,37 +113,36 @@ def test_a_killed_worker_is_replaced_and_the_run_finishes(tmp_path: Path):
     assert int(rows[-1]["grasps"]) == 3  # the lost episode does not count; the run still did its 3
 
 
-def test_signs_of_life_reach_reward_rises_above_a_random_policy(tmp_path: Path):
-    """The simplest setting: 4-DoF, the environment's target, tiny networks, 12 grasps (4 random, then 120 joint
-    updates). Afterwards the deterministic grasp policy's reach return (metres of progress of the tool tip toward
-    the fixated target) on 6 training episodes beats a uniformly random policy's on the same episodes.
+def test_signs_of_life_the_trained_policy_attempts_grasps_the_untrained_one_never_does(tmp_path: Path):
+    """The CPU preset (4-DoF, the environment's target, tiny networks, heads that see g and f) for 24 grasps: 8
+    random, then about 2 joint updates per grasp step. Afterwards the deterministic grasp policy, on 8 fixed
+    training episodes, starts a grasp (brings the tool tip down to the grasp height) in most of them; the same
+    agent untrained starts none: its mean action barely moves the gripper, which starts 0.4 m above the grasp
+    height.
 
-    What it shows: experience flows from the workers through replay into the joint GQN + SAC update, and the
-    policy improves on the reward it is given. Most of what a policy learns this early is to move toward the
-    target, mostly down; it says nothing yet about grasp success. ``init_temperature`` is lowered to 0.05:
-    with the paper's 1.0 the entropy bonus outweighs a reach reward of at most ~0.1 per step for thousands of
-    updates (the temperature falls about 3e-4 per update).
+    What it shows: experience flows from the workers through replay into the joint GQN + SAC update, and within a
+    few hundred updates the policy goes for the target and attempts the grasp (the precondition of any success:
+    the sparse reward is only earned by an attempt). Success itself takes longer: ``apr bench learning``.
     """
-    base = preset("smoke")
+    base = preset("cpu-4d")
     config = dataclasses.replace(
-        base, env=dataclasses.replace(base.env, target="env", dof=4, renderer="tiny"),
-        model=dataclasses.replace(base.model, init_temperature=0.05), workers=2, total_grasps=12, random_grasps=4,
-        updates_per_step=1.0, eval_every_grasps=0, eval_episodes=1, checkpoint_every_grasps=0, log_every_grasps=4,
-        image_every_grasps=0, runs_dir=tmp_path, run_name="signs-of-life",
+        base, env=dataclasses.replace(base.env, renderer="tiny"), total_grasps=24, max_train_minutes=0.0,
+        random_grasps=8, updates_per_step=2.0, eval_every_grasps=0, eval_episodes=1, checkpoint_every_grasps=0,
+        log_every_grasps=8, image_every_grasps=0, replay_capacity=2_000, runs_dir=tmp_path, run_name="signs-of-life",
     )  # fmt: skip
+    untrained = APRAgent(config.resolved().model)  # the run's initial weights (same seed)
     trainer = Trainer(config)
     trainer.train()
-    rng = np.random.default_rng(0)
     policies = {
         "trained": lambda observations, phase: trainer.agent.act(observations, deterministic=True, policy=phase),
-        "random": lambda observations, phase: rng.uniform(-1, 1, (len(observations["images"]), 4)).astype(np.float32),
+        "untrained": lambda observations, phase: untrained.act(observations, deterministic=True, policy=phase),
     }
-    seeds = list(range(500, 506))
-    returns = {}
+    seeds = list(range(500, 508))
+    attempts = {}
     with EnvWorkers(2, config.env.env_id, config.env.make_kwargs("train")) as workers:
         for name, policy in policies.items():
             rounds = [run_round(workers, seeds[k : k + 2], policy, 4, False) for k in range(0, len(seeds), 2)]
-            returns[name] = np.array([result.reach_return for results in rounds for result in results])
-    print({name: values.round(3).tolist() for name, values in returns.items()})
-    assert returns["trained"].mean() > returns["random"].mean() + 0.15
-    assert (returns["trained"] > returns["random"]).sum() >= 5
+            attempts[name] = sum(result.attempted for results in rounds for result in results)
+    print(f"grasp attempts in {len(seeds)} episodes: {attempts}")
+    assert attempts["untrained"] == 0
+    assert attempts["trained"] >= 5

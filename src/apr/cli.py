@@ -7,6 +7,7 @@
     apr render --out DIR                          PNGs of one episode as the robot sees it
     apr bench env                                 environment speed against the raw ceiling
     apr bench learner                             milliseconds per joint GQN + SAC update
+    apr bench learning --preset cpu-4d            held-out success against grasps and minutes, beside baselines
     apr reproduce table1 --seeds S --grasps N     train the presets of Table 1 (resumable), write table1.md
     apr reproduce package RUN_DIR                 package a run's checkpoint for apr demo
     apr plot RUN_DIR... --out FILE                held-out success against grasps, one line per preset
@@ -26,8 +27,10 @@ import tyro
 
 from apr.bench import env as env_bench
 from apr.bench import learner as learner_bench
+from apr.bench import learning as learning_bench
 from apr.bench.env import EnvBenchArgs
 from apr.bench.learner import LearnerBenchArgs
+from apr.bench.learning import LearningBenchArgs
 from apr.commands import render as render_command
 from apr.commands import train as train_command
 from apr.commands.render import RenderArgs
@@ -46,7 +49,8 @@ class BenchArgs:
 
     benchmark: Annotated[
         Annotated[EnvBenchArgs, tyro.conf.subcommand("env")]
-        | Annotated[LearnerBenchArgs, tyro.conf.subcommand("learner")],
+        | Annotated[LearnerBenchArgs, tyro.conf.subcommand("learner")]
+        | Annotated[LearningBenchArgs, tyro.conf.subcommand("learning")],
         tyro.conf.arg(name=""),
     ]
 
@@ -84,6 +88,7 @@ HANDLERS = {
     DemoArgs: demo.run,
     EnvBenchArgs: env_bench.run,
     LearnerBenchArgs: learner_bench.run,
+    LearningBenchArgs: learning_bench.run,
 }
 """What each parsed command runs (a group's chosen subcommand runs its own handler)."""
 

@@ -52,7 +52,8 @@ class LearnerBenchArgs:
 
 
 def _random_observation(batch: int, channels: int, generator: torch.Generator, device: torch.device) -> Observation:
-    """Random env-shaped observations: images uint8 (B, 3, 64, 64, C), viewpoints (B, 3, 6), gripper (B, 9)."""
+    """Random env-shaped observations: images uint8 (B, 3, 64, 64, C), viewpoints (B, 3, 6), gripper (B, 9),
+    fixation (B, 3)."""
     import torch
 
     from apr.model import Observation
@@ -61,6 +62,7 @@ def _random_observation(batch: int, channels: int, generator: torch.Generator, d
         images=torch.randint(0, 256, (batch, 3, 64, 64, channels), generator=generator, dtype=torch.uint8).to(device),
         viewpoints=(torch.rand(batch, 3, 6, generator=generator) * 6.28 - 3.14).to(device),
         gripper=(torch.rand(batch, 9, generator=generator) * 2 - 1).to(device),
+        fixation=(torch.rand(batch, 3, generator=generator) * 0.5).to(device),
     )
 
 

@@ -62,8 +62,10 @@ class ObjectSpec:
     """ours: an object whose base is outside this xy box after settling has fallen out of the tray."""
     park_position: Vec3 = (0.0, 0.0, -50.0)
     """ours: where unused objects of the pool wait (static, collision-free, out of every view)."""
-    pool_size: int = 200
-    """ours: the most objects kept loaded; the least recently used is unloaded beyond that."""
+    pool_size: int = 8
+    """ours: the most objects kept loaded; the least recently used is unloaded beyond that. Small on purpose:
+    with 900 objects a pooled one is rarely drawn again, and every parked body is still processed by each
+    render (200 parked objects doubled the EGL render time; docs/benchmarks.md)."""
 
 
 @dataclass(frozen=True)
@@ -87,10 +89,11 @@ class ArmSpec:
     finger_b_force: float = 5.5
     fingertip_force: float = 6.0
     finger_open: float = 0.3
-    workspace_x: tuple[float, float] = (0.45, 0.75)
+    workspace_x: tuple[float, float] = (0.38, 0.75)
     workspace_y: tuple[float, float] = (-0.22, 0.22)
     workspace_z: tuple[float, float] = (0.05, 0.55)
-    """Commanded end-effector bounds: x and y from the benchmark; z ours (start height 0.5, room to descend)."""
+    """Commanded end-effector bounds: y from the benchmark; z ours (start height 0.5, room to descend); x ours: the
+    benchmark's 0.45 lower bound left 17% of the objects (dropped over x in [0.40, 0.70]) out of reach."""
     max_tilt: float = math.pi / 4
     """ours: |b| and |c| (tilts of the gripper away from pointing down) are clipped to this, in rad."""
 
@@ -161,10 +164,13 @@ class RewardSpec:
     fixation_radius: float = 0.10
     """Learned fixation: the grasp counts only if the tool tip was within this of the fixation point."""
     reach_scale: float = 1.0
-    """Dense reach reward per step = reach_scale * (d_before - d_after), d = tool tip to fixation point."""
-    workspace_low: Vec3 = (0.35, -0.25, -0.2)
-    workspace_high: Vec3 = (0.85, 0.30, 0.1)
-    """Learned fixation: the action in [-1, 1]^3 maps linearly onto this box (m)."""
+    """Dense reach reward per step = reach_scale * (d_before - d_after), d = tool tip to fixation point (m).
+    The default of the environment; training presets set their own (``EnvConfig.reach_scale``)."""
+    workspace_low: Vec3 = (0.38, -0.2, -0.2)
+    workspace_high: Vec3 = (0.75, 0.2, -0.05)
+    """Learned fixation: the action in [-1, 1]^3 maps linearly onto this box (m): the drop area (x 0.40-0.70,
+    |y| <= 0.15) with a margin, within the arm's reach, from the tray floor up to where a grasp can still count
+    (a grasp starts with the tip at z <= -0.115 and must be within 0.10 m of the fixation point)."""
 
 
 PHYSICS = PhysicsSpec()

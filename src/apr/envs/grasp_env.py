@@ -12,7 +12,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from apr.envs.config import CAMERA, GRASP, PHYSICS
+from apr.envs.config import CAMERA, GRASP, PHYSICS, REWARD
 from apr.envs.task import GraspTask
 from apr.envs.world import GraspWorld, passive_cameras
 from apr.foveation import FOVEATIONS, foveate
@@ -27,11 +27,11 @@ class GraspEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
 
     def __init__(self, *, dof: int, target: str, foveation: str, split: str, renderer: str,
-                 render_mode: str | None, with_head: bool):  # fmt: skip
+                 render_mode: str | None, with_head: bool, reach_scale: float):  # fmt: skip
         _check_choice("dof", dof, DOFS)
         _check_choice("foveation", foveation, FOVEATIONS)
         _check_choice("render_mode", render_mode, (None, *self.metadata["render_modes"]))
-        self.task = GraspTask(target, split)  # validates target and split
+        self.task = GraspTask(target, split, reach_scale)  # validates target, split and reach_scale
         self.dof, self.foveation, self.render_mode = dof, foveation, render_mode
         self.learned_fixation = target == "learned"
         self.with_mask = target == "env"
@@ -42,6 +42,7 @@ class GraspEnv(gym.Env):
             "images": spaces.Box(0, 255, (views, size, size, channels), np.uint8),
             "viewpoints": spaces.Box(-2 * np.pi, 2 * np.pi, (views, 6), np.float32),
             "gripper": spaces.Box(-2.0, 2.0, (9,), np.float32),
+            "fixation": spaces.Box(-2.0, 2.0, (3,), np.float32),
         }
         grasp_action = spaces.Box(-1.0, 1.0, (dof,), np.float32)
         if self.learned_fixation:
@@ -137,6 +138,7 @@ class GraspEnv(gym.Env):
             "images": images,
             "viewpoints": viewpoints.astype(np.float32),
             "gripper": self.world.arm.pose(),
+            "fixation": np.asarray(self.fixation_point, dtype=np.float32).copy(),
         }
         if self.learned_fixation:
             observation["phase"] = self._phase
@@ -187,6 +189,7 @@ class ActiveGraspEnv(GraspEnv):
     - ``foveation``: "logpolar" or "resize" (the "w/o log-polar" ablation).
     - ``split``: "train" (at most 5 of the 900 training objects) or "test" (exactly 5 of the 100 held out).
     - ``renderer``: "auto" (EGL if pybullet's plugin loads, else TinyRenderer), "egl" or "tiny".
+    - ``reach_scale``: reach reward per metre of progress toward the fixation point (default 1.0).
 
     ## Action Space
     ``target="env"``: ``Box(-1, 1, (dof,), float32)``, the change of the gripper's commanded pose: position
@@ -194,8 +197,9 @@ class ActiveGraspEnv(GraspEnv):
     ``b`` and ``c`` tilt it about the world x and y axes (clipped to +-45 deg from pointing down).
 
     ``target="learned"``: ``Dict(fixation=Box(-1, 1, (3,)), grasp=Box(-1, 1, (dof,)))``. In the fixation phase
-    only ``fixation`` is used: it maps linearly onto the workspace box x in [0.35, 0.85], y in [-0.25, 0.30],
-    z in [-0.2, 0.1] m. In the grasp phase only ``grasp`` is used, as above.
+    only ``fixation`` is used: it maps linearly onto the workspace box x in [0.38, 0.75], y in [-0.2, 0.2],
+    z in [-0.2, -0.05] m (where the objects lie and the gripper reaches). In the grasp phase only ``grasp`` is
+    used, as above.
 
     Entries outside [-1, 1] are clipped. A NaN or infinite entry raises ``ValueError`` naming it.
 
@@ -205,6 +209,8 @@ class ActiveGraspEnv(GraspEnv):
       (``target="env"``: 255 on the target object) and 3 otherwise.
     - ``viewpoints``: float32 (3, 6), the head's six joint angles reached for each view (rad).
     - ``gripper``: float32 (9,), the tool tip (x, y, z) in m and sin/cos of the Euler angles (a, b, c).
+    - ``fixation``: float32 (3,), the point the head fixates (m): the head's own gaze command, the point where
+      the three views' lines of sight meet (the target's centre, the bin centre, or the chosen point).
     - ``phase`` (``target="learned"`` only): 0 in the fixation phase, 1 in the grasp phase.
 
     ## Episode structure
@@ -214,8 +220,8 @@ class ActiveGraspEnv(GraspEnv):
     grasp steps with views around the chosen point (phase 1).
 
     ## Rewards
-    A grasp step earns the dense reach reward ``d_before - d_after`` (m of progress of the tool tip toward the
-    fixation point). The step that attempts a grasp also earns the sparse grasp reward, 1 if
+    A grasp step earns the dense reach reward ``reach_scale * (d_before - d_after)`` (``d``: the distance in m
+    from the tool tip to the fixation point). The step that attempts a grasp also earns the sparse grasp reward, 1 if
     ``target="env"`` and the target was lifted, or ``target="learned"`` and an object was lifted while the tool
     tip was within 10 cm of the fixation point when the grasp started. ``info`` holds both parts
     (``reach_reward``, ``grasp_reward``), so the fixation policy can be trained on the grasp reward only.
@@ -227,9 +233,10 @@ class ActiveGraspEnv(GraspEnv):
     """
 
     def __init__(self, dof: int = 6, target: str = "env", foveation: str = "logpolar", split: str = "train",
-                 renderer: str = "auto", render_mode: str | None = None):  # fmt: skip
+                 renderer: str = "auto", render_mode: str | None = None,
+                 reach_scale: float = REWARD.reach_scale):  # fmt: skip
         super().__init__(dof=dof, target=target, foveation=foveation, split=split, renderer=renderer,
-                         render_mode=render_mode, with_head=True)  # fmt: skip
+                         render_mode=render_mode, with_head=True, reach_scale=reach_scale)  # fmt: skip
 
     def _render_views(self):
         head = self.world.head
@@ -258,7 +265,8 @@ class PassiveGraspEnv(GraspEnv):
 
     ## Observation Space
     ``images`` uint8 (3, 64, 64, 4) (RGB and the target mask), ``viewpoints`` float32 (3, 6) (each camera's
-    position and unit line of sight, constant), ``gripper`` float32 (9,).
+    position and unit line of sight, constant), ``gripper`` float32 (9,), ``fixation`` float32 (3,) (the
+    target's centre, toward which the reach reward pays).
 
     ## Rewards and Episode End
     As for ``apr/ActiveGrasp-v0`` with ``target="env"``: the reach reward toward the target's centre, 1 for
@@ -266,9 +274,9 @@ class PassiveGraspEnv(GraspEnv):
     """
 
     def __init__(self, dof: int = 6, split: str = "train", renderer: str = "auto",
-                 render_mode: str | None = None):  # fmt: skip
+                 render_mode: str | None = None, reach_scale: float = REWARD.reach_scale):  # fmt: skip
         super().__init__(dof=dof, target="env", foveation="resize", split=split, renderer=renderer,
-                         render_mode=render_mode, with_head=False)  # fmt: skip
+                         render_mode=render_mode, with_head=False, reach_scale=reach_scale)  # fmt: skip
         self.cameras = passive_cameras()
         self._viewpoints = np.stack([np.concatenate([cam.eye, cam.forward]) for cam in self.cameras])
 

@@ -14,14 +14,23 @@ DESCEND_WITHIN = 0.02
 def scripted_grasp_action(env: GraspEnv) -> np.ndarray:
     """Move the tool tip over the fixation point, then straight down (the env then closes and lifts).
 
-    Reads the simulator's state (the tool tip, the fixation point), which a learning agent never sees.
+    Reads the simulator's state (the tool tip, the fixation point: the target's true centre).
 
     Returns:
         (dof,) float32 grasp action; the gripper keeps pointing down and does not turn.
     """
     tip = env.world.arm.tool_tip()
-    error_xy = env.fixation_point[:2] - tip[:2]
-    action = np.zeros(env.dof, dtype=np.float32)
-    action[:2] = np.clip(error_xy / GRASP.position_step, -1.0, 1.0)
-    action[2] = -1.0 if np.linalg.norm(error_xy) < DESCEND_WITHIN else 0.0
-    return action
+    return scripted_grasp_actions(env.fixation_point[None], tip[None], env.dof)[0]
+
+
+def scripted_grasp_actions(fixation: np.ndarray, tip: np.ndarray, dof: int) -> np.ndarray:
+    """The same policy for a batch: fixation points (N, 3) and tool tips (N, 3) -> actions float32 (N, dof).
+
+    With ``target="env"`` the observation's ``fixation`` is the target's centre as the simulator knows it and
+    ``gripper[:, :3]`` the tool tip, so this runs on observations (``apr bench learning``'s ceiling).
+    """
+    error_xy = np.asarray(fixation, np.float64)[:, :2] - np.asarray(tip, np.float64)[:, :2]
+    actions = np.zeros((len(error_xy), dof), dtype=np.float32)
+    actions[:, :2] = np.clip(error_xy / GRASP.position_step, -1.0, 1.0)
+    actions[:, 2] = np.where(np.linalg.norm(error_xy, axis=1) < DESCEND_WITHIN, -1.0, 0.0)
+    return actions

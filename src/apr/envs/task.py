@@ -36,12 +36,16 @@ class GraspTask:
             (the agent picks a fixation point; lifting any object counts if the tool tip was within
             ``REWARD.fixation_radius`` of that point when the grasp started).
         split: "train" (at most 5 objects, from the 900 training objects) or "test" (exactly 5, held out).
+        reach_scale: metres of progress toward the fixation point -> reach reward (``REWARD.reach_scale``).
     """
 
-    def __init__(self, target: str, split: str):
+    def __init__(self, target: str, split: str, reach_scale: float = REWARD.reach_scale):
         if target not in TARGETS:
             raise ValueError(f"target must be one of {TARGETS}, got {target!r}")
+        if not (np.isfinite(reach_scale) and reach_scale >= 0):
+            raise ValueError(f"reach_scale must be a finite number >= 0, got {reach_scale!r}")
         self.target = target
+        self.reach_scale = float(reach_scale)
         self.split = split
         self.objects = np.array(object_ids(split))  # validates the split
         self.target_uid: int | None = None
@@ -65,10 +69,9 @@ class GraspTask:
         low, high = np.array(REWARD.workspace_low), np.array(REWARD.workspace_high)
         return low + 0.5 * (np.asarray(action, dtype=np.float64) + 1.0) * (high - low)
 
-    @staticmethod
-    def reach_reward(distance_before: float, distance_after: float) -> float:
+    def reach_reward(self, distance_before: float, distance_after: float) -> float:
         """Dense reach reward: progress of the tool tip toward the fixation point this step (potential-based)."""
-        return REWARD.reach_scale * (distance_before - distance_after)
+        return self.reach_scale * (distance_before - distance_after)
 
     def grasp_outcome(self, world: GraspWorld, tip_at_grasp: np.ndarray, fixation_point: np.ndarray) -> GraspOutcome:
         """Judge a finished grasp attempt (after close and lift)."""

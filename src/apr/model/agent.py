@@ -21,7 +21,7 @@ import torch
 from torch import nn
 
 from apr.model.config import ModelConfig, gqn_learning_rate, pixel_sigma
-from apr.model.encoder import TowerEncoder, encode_scene, images_to_float
+from apr.model.encoder import TowerEncoder, encode_scene, images_to_float, tile
 from apr.model.generator import ConvDRAWGenerator, gqn_elbo_loss
 from apr.model.heads import PolicyHeads
 from apr.model.sac import (
@@ -35,6 +35,10 @@ from apr.model.sac import (
 
 Policy = Literal["grasp", "fixation"]
 NUM_VIEWS = 3  # views rendered per step around the fixation point (paper, Method C)
+PROPRIOCEPTION_ORIGIN = (0.55, 0.0, 0.0)
+"""m: the middle of the drop area in x and y, between the tray floor and the gripper's start in z."""
+PROPRIOCEPTION_SCALE = 0.1
+"""m: the unit of the positions the heads see (the tool tip and the fixation point vary by ~0.1 m)."""
 
 
 def _as_tensor(
@@ -54,6 +58,8 @@ class Observation:
     """float32 (B, 3, 6): each view's head joint angles v."""
     gripper: torch.Tensor
     """float32 (B, 9): the gripper pose g, shared by the three views."""
+    fixation: torch.Tensor
+    """float32 (B, 3): the point the head fixates (m), shared by the three views."""
 
     @classmethod
     def from_env(cls, obs: Mapping[str, Any], device: torch.device | str = "cpu") -> Observation:
@@ -62,23 +68,37 @@ class Observation:
         images = _as_tensor(obs["images"], device)
         viewpoints = _as_tensor(obs["viewpoints"], device, torch.float32)
         gripper = _as_tensor(obs["gripper"], device, torch.float32)
+        fixation = _as_tensor(obs["fixation"], device, torch.float32)
         if images.ndim == 4:
-            images, viewpoints, gripper = images[None], viewpoints[None], gripper[None]
-        return cls(images, viewpoints, gripper)
+            images, viewpoints, gripper, fixation = images[None], viewpoints[None], gripper[None], fixation[None]
+        return cls(images, viewpoints, gripper, fixation)
 
     def __len__(self) -> int:
         return self.images.shape[0]
 
     def __getitem__(self, index: slice | torch.Tensor) -> Observation:
-        return Observation(self.images[index], self.viewpoints[index], self.gripper[index])
+        return Observation(self.images[index], self.viewpoints[index], self.gripper[index], self.fixation[index])
 
     def to(self, device: torch.device | str) -> Observation:
-        return Observation(self.images.to(device), self.viewpoints.to(device), self.gripper.to(device))
+        return Observation(self.images.to(device), self.viewpoints.to(device), self.gripper.to(device),
+                           self.fixation.to(device))  # fmt: skip
 
     def poses(self) -> torch.Tensor:
         """(B, 3, 15): each view's (v, g), the proprioceptive input of the encoder and the generator."""
         gripper = self.gripper[:, None, :].expand(-1, self.viewpoints.shape[1], -1)
         return torch.cat([self.viewpoints, gripper], dim=-1)
+
+    def proprioception(self) -> torch.Tensor:
+        """(B, 15): g, the fixation point f and f - tip, what the policy heads see beside r when
+        ``ModelConfig.heads_see_proprioception``. Positions are in units of ``PROPRIOCEPTION_SCALE`` from
+        ``PROPRIOCEPTION_ORIGIN`` (the tool tip is g's first three entries), so that every entry varies by about
+        1, as r's channels do; in metres they would vary by ~0.1 and the heads would barely feel them."""
+        origin = torch.tensor(PROPRIOCEPTION_ORIGIN, device=self.gripper.device)
+        tip, angles = self.gripper[:, :3], self.gripper[:, 3:]
+        fixation = self.fixation
+        scale = PROPRIOCEPTION_SCALE
+        positions = [(tip - origin) / scale, (fixation - origin) / scale, (fixation - tip) / scale]
+        return torch.cat([positions[0], angles, *positions[1:]], dim=-1)
 
 
 @dataclass
@@ -149,16 +169,15 @@ class APRAgent:
                 else None
             )
             grid = config.image_size // 4
+            head_inputs = config.representation_channels + config.head_proprioception_dim
             head_args = dict(
                 channels=tuple(config.head_channels),
                 grid=grid,
                 log_std_bounds=(config.log_std_min, config.log_std_max),
                 init_temperature=config.init_temperature,
             )
-            self.grasp = PolicyHeads(config.representation_channels, config.grasp_action_dim, **head_args)
-            self.fixation = PolicyHeads(
-                config.representation_channels, config.fixation_action_dim, target_critic=False, **head_args
-            )
+            self.grasp = PolicyHeads(head_inputs, config.grasp_action_dim, **head_args)
+            self.fixation = PolicyHeads(head_inputs, config.fixation_action_dim, target_critic=False, **head_args)
         self.networks = nn.ModuleDict({"encoder": self.encoder, "grasp": self.grasp, "fixation": self.fixation})
         if self.generator is not None:
             self.networks["generator"] = self.generator
@@ -218,6 +237,13 @@ class APRAgent:
         context = torch.cat([(query + 1) % NUM_VIEWS, (query + 2) % NUM_VIEWS], dim=1)
         return context, query
 
+    def _head_input(self, r: torch.Tensor, obs: Observation) -> torch.Tensor:
+        """What the policy heads see: r (B, R, 16, 16), with the proprioception (B, 15) tiled over its grid and
+        concatenated to its channels when ``heads_see_proprioception`` -> (B, R + 15, 16, 16)."""
+        if not self.config.heads_see_proprioception:
+            return r
+        return torch.cat([r, tile(obs.proprioception().to(r.dtype), r.shape[-1])], dim=1)
+
     def _first_two(self, batch: int) -> torch.Tensor:
         return torch.tensor([[0, 1]], device=self.device).expand(batch, 2)
 
@@ -240,7 +266,7 @@ class APRAgent:
         obs = obs.to(self.device) if isinstance(obs, Observation) else Observation.from_env(obs, self.device)
         heads = self.grasp if policy == "grasp" else self.fixation
         with self._autocast():
-            r = self._scene(obs, self._first_two(len(obs)), with_grad=0)
+            r = self._head_input(self._scene(obs, self._first_two(len(obs)), with_grad=0), obs)
             action = heads.actor.mode(r) if deterministic else heads.actor.sample(r, self.act_rng)[0]
         return action.float().cpu().numpy()
 
@@ -288,7 +314,8 @@ class APRAgent:
             context, query = self._split_context_query(batch)
             r = self._scene(grasp_batch.obs, context, grasp_grad)
             with torch.no_grad():
-                r_next = self._scene(grasp_batch.next_obs, self._first_two(batch), with_grad=0)
+                next_obs = grasp_batch.next_obs
+                r_next = self._head_input(self._scene(next_obs, self._first_two(batch), with_grad=0), next_obs)
             if fixation_batch is not None:
                 fix_context, fix_query = self._split_context_query(fix_batch)
                 r_fix = self._scene(fixation_batch.obs, fix_context, fix_grad)
@@ -317,7 +344,8 @@ class APRAgent:
                 metrics.update(gqn_metrics)
 
             # Stop-gradient: the RL losses see r detached, except the ablation's critics.
-            r_critic = r.detach() if config.representation else r
+            r_critic = self._head_input(r.detach() if config.representation else r, grasp_batch.obs)
+            r_actor = self._head_input(r.detach(), grasp_batch.obs)
             losses["grasp/critic"], m = sac_critic_loss(
                 self.grasp,
                 r_critic,
@@ -329,18 +357,20 @@ class APRAgent:
                 self.rng,
             )
             metrics.update({f"grasp/{k}": v for k, v in m.items()})
-            losses["grasp/actor"], log_prob, m = sac_actor_loss(self.grasp, r.detach(), self.rng)
+            losses["grasp/actor"], log_prob, m = sac_actor_loss(self.grasp, r_actor, self.rng)
             metrics.update({f"grasp/{k}": v for k, v in m.items()})
             losses["grasp/temperature"], m = temperature_loss(self.grasp.log_alpha, log_prob, self.grasp.target_entropy)
             metrics.update({f"grasp/{k}": v for k, v in m.items()})
 
             if fixation_batch is not None:
-                r_fix_critic = r_fix.detach() if config.representation else r_fix
+                fix_obs = fixation_batch.obs
+                r_fix_critic = self._head_input(r_fix.detach() if config.representation else r_fix, fix_obs)
                 losses["fixation/critic"], m = bandit_critic_loss(
                     self.fixation, r_fix_critic, fixation_batch.action.float(), fixation_batch.reward.float()
                 )
                 metrics.update({f"fixation/{k}": v for k, v in m.items()})
-                losses["fixation/actor"], log_prob, m = sac_actor_loss(self.fixation, r_fix.detach(), self.rng)
+                r_fix_actor = self._head_input(r_fix.detach(), fix_obs)
+                losses["fixation/actor"], log_prob, m = sac_actor_loss(self.fixation, r_fix_actor, self.rng)
                 metrics.update({f"fixation/{k}": v for k, v in m.items()})
                 losses["fixation/temperature"], m = temperature_loss(
                     self.fixation.log_alpha, log_prob, self.fixation.target_entropy

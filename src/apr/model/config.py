@@ -72,6 +72,10 @@ class ModelConfig:
     # --- policy heads (paper, Method B) ---
     head_channels: tuple[int, ...] = (128, 64, 32)
     """Conv block of every actor and critic: 3x3 kernels with these channels (paper, Method B)."""
+    heads_see_proprioception: bool = False
+    """False: the actors and critics see r only (paper, Method B: g and v reach the policy only through the
+    encoder). True (ours, the CPU preset): they also see the gripper pose g, the fixation point f and f - tip,
+    tiled beside r (docs/decisions.md: the encoder, trained by the ELBO only, keeps little of g in r)."""
     log_std_min: float = -20.0
     """Clamp of the actor's log standard deviation, low end (Haarnoja et al. 2018 reference code: -20)."""
     log_std_max: float = 2.0
@@ -139,6 +143,11 @@ class ModelConfig:
     def replace(self, **changes: object) -> ModelConfig:
         """A copy with some fields changed."""
         return dataclasses.replace(self, **changes)  # type: ignore[arg-type]
+
+    @property
+    def head_proprioception_dim(self) -> int:
+        """Channels the proprioception adds to a head's input: g (9), f (3), f - tip (3); or 0."""
+        return self.gripper_dim + 6 if self.heads_see_proprioception else 0
 
     @property
     def pose_dim(self) -> int:

@@ -2,7 +2,11 @@
 
 Each output is a conv block (3x3 kernels, 128/64/32 channels, ReLU) then one fully connected layer
 (paper, Method B). The critic sees the action tiled over r's 16x16 grid and concatenated to r's channels,
-so that Q is a nonlinear function of the action.
+so that Q is a nonlinear function of the action. The input "r" of a head may carry more channels than the
+representation (the proprioception tiled beside it: ``APRAgent._head_input``).
+
+The heads always compute in fp32, also under bf16 autocast: Q must resolve per-step rewards of a few
+hundredths, which bf16's 8-bit mantissa cannot (about 0.004 at Q ~ 1).
 """
 
 from __future__ import annotations
@@ -44,7 +48,8 @@ class Actor(nn.Module):
 
     def forward(self, r: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """r: (B, R, 16, 16). Returns the pre-tanh mean and log-std, each (B, A), fp32."""
-        mean, log_std = self.out(self.trunk(r)).float().chunk(2, dim=-1)
+        with torch.autocast(r.device.type, enabled=False):
+            mean, log_std = self.out(self.trunk(r.float())).chunk(2, dim=-1)
         return mean, log_std.clamp(self.log_std_min, self.log_std_max)
 
     def sample(self, r: torch.Tensor, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -78,8 +83,9 @@ class Critic(nn.Module):
 
     def forward(self, r: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """r: (B, R, 16, 16); action: (B, A). Returns Q: (B,) fp32."""
-        x = torch.cat([r, tile(action.to(r.dtype), r.shape[-1])], dim=1)
-        return self.out(self.trunk(x)).float().squeeze(-1)
+        with torch.autocast(r.device.type, enabled=False):
+            x = torch.cat([r.float(), tile(action.float(), r.shape[-1])], dim=1)
+            return self.out(self.trunk(x)).squeeze(-1)
 
 
 class TwinCritic(nn.Module):

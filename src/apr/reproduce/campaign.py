@@ -86,14 +86,14 @@ def campaign_config(
 
 
 def run_status(run_dir: Path, total_grasps: int) -> RunStatus:
-    """done: it has an evaluation at or beyond ``total_grasps``; resume: it has a checkpoint; new: no run
-    folder; restart: a run folder without a checkpoint."""
+    """done: it has an evaluation at or beyond ``total_grasps``, or the final one of a run that ran out of
+    training time; resume: it has a checkpoint; new: no run folder; restart: a run folder without a checkpoint."""
     from apr.train.trainer import latest_checkpoint
 
     if not (run_dir / "config.json").exists():
         return "new"
     result = final_eval(run_dir)
-    if result is not None and int(result["grasps"]) >= total_grasps:
+    if result is not None and (int(result["grasps"]) >= total_grasps or result.get("final")):
         return "done"
     return "resume" if latest_checkpoint(run_dir) is not None else "restart"
 

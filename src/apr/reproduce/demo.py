@@ -91,6 +91,8 @@ def run(args: DemoArgs, packaged_dir: Path = PACKAGED_DIR) -> DemoResult:
     if notice:
         print("=" * 100 + "\n" + textwrap.fill(notice, 100) + "\n" + "=" * 100)
     print(f"policy: {snapshot.label}")
+    if snapshot.training:
+        print(textwrap.fill(snapshot.training, 100))
     renderer = None if args.renderer == "auto" else args.renderer
     records = evaluation_episodes(snapshot, args.episodes, renderer, keep_frames=max(args.gif_episodes, 3))
     successes = sum(record.success for record in records)
@@ -121,6 +123,7 @@ def _report(snapshot: PolicySnapshot, notice: str, records: list, summary: str, 
     lines += [
         f"**Policy:** {snapshot.label}.",
         "",
+        *([f"**Training:** {snapshot.training}", ""] if snapshot.training else []),
         f"**Task:** `{env.env_id}` (dof {env.dof}, target `{env.target}`, foveation `{env.foveation}`) on held-out "
         f"objects (exactly 5 in the tray), the deterministic (mean) action, seeds {EVAL_SEED} to "
         f"{EVAL_SEED + len(records) - 1} (those `apr eval` uses).",

@@ -44,6 +44,7 @@ from apr.reproduce.episodes import (
 from apr.reproduce.policies import PolicySnapshot, initial_snapshot, load_run, load_training_checkpoint, run_checkpoints
 from apr.train.config import EnvConfig
 from apr.train.evaluation import EVAL_SEED
+from apr.train.rollout import stack
 
 SCRIPTED_LABEL = "the scripted reach-and-grasp (it reads the simulator's state; no learning)"
 TITLE_CHARS_PER_INCH = 15
@@ -184,7 +185,7 @@ def gqn_figure(
     columns = 3 + len(with_generator)
     figure = Figure(layout="constrained", figsize=(1.5 * columns + 0.4, 1.7 * len(observations) + 1.0))
     grid = figure.subplots(len(observations), columns, squeeze=False)
-    predictions = [snapshot.agent.predict_view(_batch(observations), query_view) for snapshot in with_generator]
+    predictions = [snapshot.agent.predict_view(stack(observations), query_view) for snapshot in with_generator]
     for row, observation in enumerate(observations):
         images = observation["images"]
         labels = [f"context view {context[0]}", f"context view {context[1]}", f"truth: view {query_view}"]
@@ -198,10 +199,6 @@ def gqn_figure(
         f"Fig. 6: the generator's prediction of view {query_view} from views {context[0]} and "
         f"{context[1]} (a sample from the prior; RGB shown), at snapshots of {run_label}.",
     )
-
-
-def _batch(observations: Sequence[dict]) -> dict[str, np.ndarray]:
-    return {key: np.stack([o[key] for o in observations]) for key in ("images", "viewpoints", "gripper")}
 
 
 # ------------------------------------------------------------------------------------------------------ GIF

@@ -20,6 +20,7 @@ from typing import Annotated, Literal
 import torch
 import tyro
 
+from apr.machine import machine_description
 from apr.model.agent import APRAgent
 from apr.reproduce.runs import final_eval
 from apr.train.config import TrainConfig, preset
@@ -45,6 +46,9 @@ class PolicySnapshot:
     """False for freshly initialised weights, whatever the label."""
     source: str = ""
     """The file or folder it came from."""
+    training: str = ""
+    """How it was trained and what it measured, when known (packaged checkpoints): command, grasps, minutes,
+    machine, held-out success."""
 
 
 def new_agent(config: TrainConfig) -> APRAgent:
@@ -126,7 +130,24 @@ def load_packaged(manifest_path: Path) -> PolicySnapshot:
     agent.networks.load_state_dict(weights)
     grasps = int(manifest["grasps"])
     label = f"packaged checkpoint {manifest_path.stem} ({config.preset}, {grasps:,} grasps)"
-    return PolicySnapshot(agent, config, grasps, label, trained=grasps > 0, source=str(manifest_path))
+    return PolicySnapshot(agent, config, grasps, label, trained=grasps > 0, source=str(manifest_path),
+                          training=training_description(manifest))  # fmt: skip
+
+
+def training_description(manifest: dict) -> str:
+    """One sentence from a manifest: how the weights were trained, and their measured held-out success."""
+    text = f"trained with `{manifest['command']}` for {int(manifest['grasps']):,} grasps"
+    if manifest.get("train_minutes") is not None:
+        text += f" in {manifest['train_minutes']:.1f} minutes of training"
+    if manifest.get("machine"):
+        text += f" on {manifest['machine']}"
+    evaluation = manifest.get("final_eval")
+    if evaluation:
+        text += (f"; measured held-out success at those weights: {evaluation['successes']}/{evaluation['episodes']} "
+                 f"= {evaluation['success_rate']:.1%} (95% CI {evaluation['ci_low']:.1%}-{evaluation['ci_high']:.1%})")
+    else:
+        text += "; no held-out evaluation of these exact weights was recorded"
+    return text + "."
 
 
 def load_policy(path: Path) -> PolicySnapshot:
@@ -142,12 +163,14 @@ def load_policy(path: Path) -> PolicySnapshot:
 
 
 def package_checkpoint(
-    source: Path, out_dir: Path = PACKAGED_DIR, name: str = "", command: str = "", weights_format: str = "pt"
+    source: Path, out_dir: Path = PACKAGED_DIR, name: str = "", command: str = "", weights_format: str = "pt",
+    machine: str = "",
 ) -> Path:
     """Write a packaged checkpoint (manifest and weights) from a run folder or a training checkpoint.
 
     Args:
         command: the command that trained it (recorded in the manifest; default: rebuilt from the config).
+        machine: what it was trained on (default: this machine, ``apr.machine.machine_description``).
         weights_format: "pt" (torch tensors, no extra dependency) or "safetensors" (needs the package).
 
     Returns:
@@ -180,6 +203,8 @@ def package_checkpoint(
         or f"apr train --preset {config.preset} --seed {config.seed} "
         f"--total-grasps {config.total_grasps} (other fields: see config)",
         "source": str(snapshot.source),
+        "train_minutes": round(evaluation["train_s"] / 60, 1) if evaluation and "train_s" in evaluation else None,
+        "machine": machine or machine_description(),
         "created": time.strftime("%Y-%m-%d %H:%M:%S"),
         "final_eval": {
             key: evaluation[key]
@@ -206,11 +231,13 @@ class PackageArgs:
     """File name without suffix; default: PRESET__sSEED__NGRASPSgrasps."""
     command: str = ""
     """The command that trained it, for the manifest (default: rebuilt from the run's configuration)."""
+    machine: str = ""
+    """What it was trained on, for the manifest (default: a description of this machine)."""
     weights_format: Literal["pt", "safetensors"] = "pt"
     """pt: a torch tensor dict (no extra dependency); safetensors: needs pip install safetensors."""
 
 
 def run_package(args: PackageArgs) -> Path:
-    manifest = package_checkpoint(args.source, args.out, args.name, args.command, args.weights_format)
+    manifest = package_checkpoint(args.source, args.out, args.name, args.command, args.weights_format, args.machine)
     print(f"wrote {manifest} and its weights; apr demo now uses it")
     return manifest

@@ -9,7 +9,7 @@ from dataclasses import asdict, dataclass, field
 
 from apr.model.agent import APRAgent
 from apr.train.config import EnvConfig
-from apr.train.rollout import EpisodeResult, run_round
+from apr.train.rollout import EpisodeResult, Policy, run_round
 from apr.train.workers import EnvWorkers
 
 EVAL_SEED = 2_000_000_000
@@ -45,12 +45,19 @@ class EvalResult:
 
 def evaluate(agent: APRAgent, env: EnvConfig, episodes: int, split: str = "test", num_workers: int = 1) -> EvalResult:
     """Run ``episodes`` episodes with the mean action of both policies; lost episodes are rerun."""
-    if episodes < 1:
-        raise ValueError(f"episodes must be at least 1, got {episodes}")
 
     def policy(observations, phase):
         return agent.act(observations, deterministic=True, policy=phase)
 
+    return evaluate_policy(policy, env, episodes, split, num_workers)
+
+
+def evaluate_policy(policy: Policy, env: EnvConfig, episodes: int, split: str = "test",
+                    num_workers: int = 1) -> EvalResult:  # fmt: skip
+    """Run ``episodes`` episodes of ``policy`` on the evaluation seeds ``EVAL_SEED + k`` (the same episodes for
+    every policy, checkpoint and run); lost episodes are rerun with the next seeds."""
+    if episodes < 1:
+        raise ValueError(f"episodes must be at least 1, got {episodes}")
     done: list[EpisodeResult] = []
     lost = 0
     next_seed = EVAL_SEED

@@ -25,6 +25,7 @@ class ReplaySpec:
     """(3, 6)"""
     gripper_dim: int
     grasp_action_dim: int
+    fixation_dim: int = 3
     fixation_action_dim: int = 3
 
 
@@ -36,6 +37,7 @@ class FrameRing:
         self.images = np.zeros((capacity, *spec.image_shape), np.uint8)
         self.viewpoints = np.zeros((capacity, *spec.viewpoint_shape), np.float32)
         self.gripper = np.zeros((capacity, spec.gripper_dim), np.float32)
+        self.fixation = np.zeros((capacity, spec.fixation_dim), np.float32)
         self.stamp = np.full(capacity, -1, np.int64)
         self.writes = 0
 
@@ -45,12 +47,14 @@ class FrameRing:
         self.images[slot] = observation["images"]
         self.viewpoints[slot] = observation["viewpoints"]
         self.gripper[slot] = observation["gripper"]
+        self.fixation[slot] = observation["fixation"]
         self.stamp[slot] = self.writes
         self.writes += 1
         return slot, self.writes - 1
 
     def batch(self, slots: np.ndarray) -> dict[str, np.ndarray]:
-        return {"images": self.images[slots], "viewpoints": self.viewpoints[slots], "gripper": self.gripper[slots]}
+        return {"images": self.images[slots], "viewpoints": self.viewpoints[slots], "gripper": self.gripper[slots],
+                "fixation": self.fixation[slots]}  # fmt: skip
 
 
 class ReplayBuffer:
@@ -86,7 +90,8 @@ class ReplayBuffer:
     @staticmethod
     def bytes_needed(capacity: int, spec: ReplaySpec) -> int:
         """Memory the buffer allocates for ``capacity`` (what ``__init__`` will take)."""
-        frame = int(np.prod(spec.image_shape)) + 4 * (int(np.prod(spec.viewpoint_shape)) + spec.gripper_dim) + 8
+        poses = int(np.prod(spec.viewpoint_shape)) + spec.gripper_dim + spec.fixation_dim
+        frame = int(np.prod(spec.image_shape)) + 4 * poses + 8
         transition = 8 * 4 + 4 * (spec.grasp_action_dim + 2)
         fixation = 16 + 4 * (spec.fixation_action_dim + 1)
         return (capacity + capacity // 2) * frame + capacity * transition + max(capacity // 4, 1) * fixation

@@ -51,9 +51,13 @@ class Recorder(Protocol):
     def on_end(self, worker: int, result: EpisodeResult) -> None: ...
 
 
+MODEL_KEYS = ("images", "viewpoints", "gripper", "fixation")
+"""The observation entries the model reads."""
+
+
 def stack(observations: list[dict[str, Any]]) -> dict[str, np.ndarray]:
     """Batch a list of observation dicts (the keys the model reads)."""
-    return {key: np.stack([o[key] for o in observations]) for key in ("images", "viewpoints", "gripper")}
+    return {key: np.stack([o[key] for o in observations]) for key in MODEL_KEYS}
 
 
 def run_round(

@@ -37,7 +37,7 @@ from apr.train.workers import EnvWorkers, StepResult
 
 METRICS_COLUMNS = (
     "grasps", "env_steps", "updates", "wall_s", "train_success", "eval_success", "eval_ci_low", "eval_ci_high",
-    "attempt_rate", "reach_return", "lost_episodes", "grasps_per_min",
+    "attempt_rate", "reach_return", "lost_episodes", "grasps_per_min", "train_s", "learner_s", "act_s", "eval_s",
 )  # fmt: skip
 RECENT_EPISODES = 100
 """Training success is the share of the last this many episodes."""
@@ -54,12 +54,24 @@ class Progress:
     episodes_started: int = 0
     lost_episodes: int = 0
     wall_s: float = 0.0
+    """Seconds of the run so far, evaluations included."""
+    eval_s: float = 0.0
+    """Seconds spent evaluating on held-out objects."""
+    learner_s: float = 0.0
+    """Seconds spent in learner updates (they overlap the workers' simulation)."""
+    act_s: float = 0.0
+    """Seconds spent choosing actions (the policies' forward passes)."""
     update_debt: float = 0.0
     """Updates owed to the update-to-data ratio and not made yet."""
     recent: list[list[float]] = field(default_factory=list)
     """(success, attempted, reach return) of the last episodes."""
     loss_sums: dict[str, float] = field(default_factory=dict)
     loss_count: int = 0
+
+    @property
+    def train_s(self) -> float:
+        """Seconds of training: the run's wall clock less its evaluations."""
+        return self.wall_s - self.eval_s
 
 
 def make_run_dir(config: TrainConfig) -> Path:
@@ -153,7 +165,7 @@ class Trainer:
         started = time.perf_counter() - progress.wall_s
         bar = tqdm(total=config.total_grasps, initial=progress.grasps, unit="grasp", dynamic_ncols=True)
         try:
-            while progress.grasps < config.total_grasps and not self._stop_requested:
+            while not self._finished() and not self._stop_requested:
                 before = progress.grasps
                 count = min(len(workers), config.total_grasps - progress.grasps)
                 seeds = [episode_seed(config.seed, progress.episodes_started + k) for k in range(count)]
@@ -164,10 +176,10 @@ class Trainer:
                 progress.wall_s = time.perf_counter() - started
                 bar.update(progress.grasps - before)
                 bar.set_postfix(self._postfix(), refresh=False)
-                if progress.grasps < config.total_grasps:
+                if not self._finished():
                     self._between_rounds(before)
-            if progress.grasps >= config.total_grasps:  # the end: a last evaluation, row and pictures
-                self._log(self._evaluate())
+            if self._finished():  # the end: a last evaluation, row and pictures
+                self._log(self._evaluate(config.final_eval_episodes or config.eval_episodes, final=True))
                 self._log_images()
             self._checkpoint()
             if self._stop_requested:
@@ -178,6 +190,12 @@ class Trainer:
             workers.close()
             self.writer.close()
         return self.run_dir
+
+    def _finished(self) -> bool:
+        """The grasp budget is spent, or the training-time budget (``max_train_minutes``)."""
+        config, progress = self.config, self.progress
+        out_of_time = config.max_train_minutes > 0 and progress.train_s >= 60 * config.max_train_minutes
+        return progress.grasps >= config.total_grasps or out_of_time
 
     def _request_stop(self, signum: int, frame: Any) -> None:
         print("\nCtrl-C: finishing this round, then saving a checkpoint (Ctrl-C again to quit at once)")
@@ -190,7 +208,10 @@ class Trainer:
         if self.progress.grasps < self.config.random_grasps:
             size = 3 if phase == "fixation" else self.config.env.dof
             return self.rng.uniform(-1.0, 1.0, (batch, size)).astype(np.float32)
-        return self.agent.act(observations, deterministic=False, policy=phase)
+        started = time.perf_counter()
+        actions = self.agent.act(observations, deterministic=False, policy=phase)
+        self.progress.act_s += time.perf_counter() - started
+        return actions
 
     def _learn(self, steps: int) -> None:
         """The learner's share of ``steps`` grasp steps: ``updates_per_step`` joint updates each."""
@@ -198,6 +219,7 @@ class Trainer:
         progress.update_debt += config.updates_per_step * steps
         warmed_up = progress.grasps >= config.random_grasps
         ready = warmed_up and self.replay.num_transitions() >= config.model.batch_size
+        started = time.perf_counter()
         while ready and progress.update_debt >= 1.0:
             metrics = self.agent.update(*self._sample_batches(), step=progress.updates)
             progress.updates += 1
@@ -205,6 +227,7 @@ class Trainer:
             progress.loss_count += 1
             for name, value in metrics.items():
                 progress.loss_sums[name] = progress.loss_sums.get(name, 0.0) + value
+        progress.learner_s += time.perf_counter() - started
         if not ready:
             progress.update_debt = 0.0  # no debt builds up during warm-up
 
@@ -241,7 +264,7 @@ class Trainer:
 
     def _postfix(self) -> dict[str, str]:
         recent = np.array(self.progress.recent or [[0.0, 0.0, 0.0]])
-        per_minute = 60 * self.progress.grasps / max(self.progress.wall_s, 1e-9)
+        per_minute = 60 * self.progress.grasps / max(self.progress.train_s, 1e-9)
         return {"success": f"{recent[:, 0].mean():.0%}", "grasps/min": f"{per_minute:.1f}",
                 "updates": str(self.progress.updates)}  # fmt: skip
 
@@ -260,10 +283,19 @@ class Trainer:
         if crossed(config.checkpoint_every_grasps):
             self._checkpoint()
 
-    def _evaluate(self) -> dict:
+    def _evaluate(self, episodes: int | None = None, final: bool = False) -> dict:
+        """Evaluate on held-out objects; write ``eval/eval_GRASPS.json`` (``final``: the run's last one)."""
         config = self.config
-        result = evaluate(self.agent, config.env, config.eval_episodes, "test", config.eval_workers).to_dict()
+        started = time.perf_counter()
+        result = evaluate(self.agent, config.env, episodes or config.eval_episodes, "test",
+                          config.eval_workers).to_dict()  # fmt: skip
+        elapsed = time.perf_counter() - started
+        self.progress.eval_s += elapsed
+        self.progress.wall_s += elapsed  # the round loop recomputes it from the start time; the same sum
         result["grasps"] = self.progress.grasps
+        result["train_s"] = round(self.progress.train_s, 2)
+        result["updates"] = self.progress.updates
+        result["final"] = final
         path = self.run_dir / "eval" / f"eval_{self.progress.grasps:08d}.json"
         path.write_text(json.dumps(result, indent=2))
         interval = f"95% CI {result['ci_low']:.1%}-{result['ci_high']:.1%}"
@@ -282,7 +314,9 @@ class Trainer:
             "eval_ci_high": evaluation["ci_high"] if evaluation else "",
             "attempt_rate": recent[:, 1].mean(), "reach_return": recent[:, 2].mean(),
             "lost_episodes": progress.lost_episodes,
-            "grasps_per_min": round(60 * progress.grasps / max(progress.wall_s, 1e-9), 2),
+            "grasps_per_min": round(60 * progress.grasps / max(progress.train_s, 1e-9), 2),
+            "train_s": round(progress.train_s, 2), "learner_s": round(progress.learner_s, 2),
+            "act_s": round(progress.act_s, 2), "eval_s": round(progress.eval_s, 2),
         }  # fmt: skip
         path = self.run_dir / "metrics.csv"
         new = not path.exists()

@@ -1,0 +1,241 @@
+"""``apr bench learning``: does a preset learn? Held-out success against grasps and minutes, beside baselines.
+
+For each seed it trains the preset into ``OUT/runs/PRESET__sSEED`` (a finished run is reused, an interrupted
+one resumed), then evaluates three baselines on the same held-out episodes (the evaluation seeds are fixed):
+
+- untrained: the preset's agent with fresh weights (deterministic action), what training starts from;
+- random: uniformly random actions;
+- scripted: the scripted reach-and-grasp, which reads the target's true centre and moves the tool tip over
+  it, then straight down (environment-selected targets only): the ceiling a reach-and-descend policy can
+  hope for.
+
+It writes ``OUT/curve.csv`` (every evaluation of every run: grasps, training minutes, success and its 95%
+Wilson interval), ``OUT/baselines.json``, ``OUT/curve.png`` (success against grasps and against training
+minutes) and ``OUT/summary.md``, and prints grasps per minute, updates per second and where the time went.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+BASELINES = ("untrained", "random", "scripted")
+CURVE_COLUMNS = ("run", "seed", "grasps", "updates", "train_minutes", "episodes", "successes", "success_rate",
+                 "ci_low", "ci_high", "final")  # fmt: skip
+
+
+@dataclass
+class LearningBenchArgs:
+    """Train a preset over seeds, evaluate baselines on the same held-out episodes, write the learning curve."""
+
+    preset: str = "cpu-4d"
+    """The preset to measure (``apr presets``)."""
+    seeds: tuple[int, ...] = (0, 1)
+    """Seeds, one run each (run one after the other: a timing taken beside another job is not a benchmark)."""
+    out: Path = Path("results/cpu-4d")
+    """Results folder; the runs go to ``OUT/runs``."""
+    baseline_episodes: int = 0
+    """Held-out episodes per baseline; 0 = the preset's final evaluation size."""
+    workers: int = 0
+    """Env processes for training and evaluation; 0 = the preset's."""
+    renderer: Literal["", "auto", "egl", "tiny"] = ""
+    """Renderer for training and baselines; empty = the preset's."""
+    report_only: bool = False
+    """Do not train: report the runs already in ``OUT/runs`` (finished or not) and the baselines."""
+
+
+def run(args: LearningBenchArgs) -> None:
+    from apr.train.config import preset
+
+    config = preset(args.preset)  # validates the name before any work
+    if args.workers < 0 or args.baseline_episodes < 0:
+        raise SystemExit("--workers and --baseline-episodes must be >= 0")
+    if not args.seeds:
+        raise SystemExit("--seeds: give at least one seed")
+    if args.workers:
+        config = dataclasses.replace(config, workers=args.workers)
+    if args.renderer:
+        config = dataclasses.replace(config, env=dataclasses.replace(config.env, renderer=args.renderer))
+    args.out.mkdir(parents=True, exist_ok=True)
+    runs_dir = args.out / "runs"
+    run_dirs = [runs_dir / f"{args.preset}__s{seed}" for seed in args.seeds]
+    if not args.report_only:
+        for seed, run_dir in zip(args.seeds, run_dirs, strict=True):
+            _train(dataclasses.replace(config, seed=seed, runs_dir=runs_dir, run_name=run_dir.name), run_dir)
+    episodes = args.baseline_episodes or config.final_eval_episodes or config.eval_episodes
+    baselines = _baselines(config.resolved(), episodes, args.out / "baselines.json")
+    curve = [row for run_dir in run_dirs if run_dir.exists() for row in _curve_rows(run_dir)]
+    _write_csv(args.out / "curve.csv", curve)
+    timings = [_timing(run_dir) for run_dir in run_dirs if (run_dir / "metrics.csv").exists()]
+    _plot(args.out / "curve.png", args.preset, curve, baselines)
+    summary = _summary(args, curve, baselines, timings)
+    (args.out / "summary.md").write_text(summary)
+    print(summary)
+
+
+# ---------------------------------------------------------------------------------------------------- training
+def _train(config, run_dir: Path) -> None:
+    from apr.train.trainer import Trainer, latest_checkpoint
+
+    if _final_eval(run_dir) is not None:
+        print(f"{run_dir}: finished, reused")
+        return
+    if run_dir.exists() and latest_checkpoint(run_dir) is not None:
+        Trainer.resume(run_dir).train()
+    else:
+        if run_dir.exists():  # a start that never reached its first checkpoint: nothing to keep
+            import shutil
+
+            shutil.rmtree(run_dir)
+        Trainer(config).train()
+
+
+def _final_eval(run_dir: Path) -> dict | None:
+    for path in sorted((run_dir / "eval").glob("eval_*.json"), reverse=True):
+        result = json.loads(path.read_text())
+        if result.get("final"):
+            return result
+    return None
+
+
+# --------------------------------------------------------------------------------------------------- baselines
+def _baselines(config, episodes: int, path: Path) -> dict[str, dict]:
+    """Each baseline's evaluation on ``episodes`` held-out episodes, cached in ``path`` per environment."""
+    from apr.envs.scripted import scripted_grasp_actions
+    from apr.reproduce.policies import new_agent
+    from apr.train.evaluation import evaluate, evaluate_policy
+
+    env = config.env
+    key = json.dumps({"env": dataclasses.asdict(env), "episodes": episodes, "preset": config.preset}, sort_keys=True)
+    if path.exists():
+        cached = json.loads(path.read_text())
+        if cached.get("key") == key:
+            return cached["results"]
+    rng = np.random.default_rng(0)
+    dof = env.dof
+
+    def random_policy(observations, phase):
+        size = 3 if phase == "fixation" else dof
+        return rng.uniform(-1.0, 1.0, (len(observations["images"]), size)).astype(np.float32)
+
+    def scripted_policy(observations, phase):
+        return scripted_grasp_actions(observations["fixation"], observations["gripper"][:, :3], dof)
+
+    workers = config.eval_workers
+    results = {"untrained": evaluate(new_agent(config), env, episodes, "test", workers).to_dict(),
+               "random": evaluate_policy(random_policy, env, episodes, "test", workers).to_dict()}  # fmt: skip
+    if not env.learned_fixation:
+        results["scripted"] = evaluate_policy(scripted_policy, env, episodes, "test", workers).to_dict()
+    for result in results.values():
+        result.pop("outcomes")
+    path.write_text(json.dumps({"key": key, "results": results}, indent=2))
+    return results
+
+
+# ------------------------------------------------------------------------------------------------------ curves
+def _curve_rows(run_dir: Path) -> list[dict]:
+    config = json.loads((run_dir / "config.json").read_text())
+    rows = []
+    for path in sorted((run_dir / "eval").glob("eval_*.json")):
+        result = json.loads(path.read_text())
+        rows.append({
+            "run": run_dir.name, "seed": config["seed"], "grasps": result["grasps"],
+            "updates": result.get("updates", ""),
+            "train_minutes": round(result["train_s"] / 60, 2) if "train_s" in result else "",
+            "episodes": result["episodes"], "successes": result["successes"], "success_rate": result["success_rate"],
+            "ci_low": result["ci_low"], "ci_high": result["ci_high"], "final": bool(result.get("final")),
+        })  # fmt: skip
+    return rows
+
+
+def _write_csv(path: Path, rows: list[dict]) -> None:
+    with open(path, "w", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=CURVE_COLUMNS)
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def _timing(run_dir: Path) -> dict:
+    """Throughput and the split of a run's training time, from the last row of its ``metrics.csv``."""
+    with open(run_dir / "metrics.csv", newline="") as file:
+        last = list(csv.DictReader(file))[-1]
+    train_s = float(last["train_s"])
+    learner_s, act_s = float(last["learner_s"]), float(last["act_s"])
+    return {
+        "run": run_dir.name, "grasps": int(last["grasps"]), "env_steps": int(last["env_steps"]),
+        "updates": int(last["updates"]), "train_minutes": train_s / 60, "eval_minutes": float(last["eval_s"]) / 60,
+        "grasps_per_min": 60 * int(last["grasps"]) / train_s, "updates_per_s": int(last["updates"]) / train_s,
+        "learner_share": learner_s / train_s, "act_share": act_s / train_s,
+        "env_share": max(train_s - learner_s - act_s, 0.0) / train_s,
+    }  # fmt: skip
+
+
+def _plot(path: Path, preset: str, curve: list[dict], baselines: dict[str, dict]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(1, 2, figsize=(11, 4.2), sharey=True)
+    colours = {"untrained": "tab:gray", "random": "tab:brown", "scripted": "tab:green"}
+    panels = ((axes[0], "grasps", "training grasps"),
+              (axes[1], "train_minutes", "training minutes (evaluations not counted)"))  # fmt: skip
+    for axis, x_name, x_label in panels:
+        for run in sorted({row["run"] for row in curve}):
+            rows = [row for row in curve if row["run"] == run and row[x_name] != ""]
+            if not rows:
+                continue
+            x = np.array([float(row[x_name]) for row in rows])
+            y = np.array([row["success_rate"] for row in rows])
+            low, high = np.array([row["ci_low"] for row in rows]), np.array([row["ci_high"] for row in rows])
+            line = axis.plot(x, y, marker="o", label=f"{run} (held-out)")[0]
+            axis.fill_between(x, low, high, color=line.get_color(), alpha=0.15)
+        for name, result in baselines.items():
+            axis.axhline(result["success_rate"], color=colours[name], linestyle="--",
+                         label=f"{name}: {result['success_rate']:.0%} ({result['episodes']} ep.)")  # fmt: skip
+        axis.set_xlabel(x_label)
+        axis.grid(alpha=0.3)
+    axes[0].set_ylabel("held-out success (95% Wilson interval shaded)")
+    axes[0].set_ylim(-0.02, 1.02)
+    axes[1].legend(fontsize=7, loc="upper left")
+    figure.suptitle(f"apr bench learning: {preset}, 5 held-out objects per episode, deterministic action")
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+
+
+def _summary(args: LearningBenchArgs, curve: list[dict], baselines: dict[str, dict], timings: list[dict]) -> str:
+    from apr.machine import machine_description
+
+    lines = [f"# apr bench learning: {args.preset}", "",
+             f"Machine: {machine_description()}. Command: `apr bench learning --preset {args.preset} --seeds "
+             f"{' '.join(map(str, args.seeds))} --out {args.out}`", "",
+             "## Held-out success at the end of each run", "",
+             "| run | grasps | training minutes | success | 95% CI | episodes |", "|" + " --- |" * 6]  # fmt: skip
+    finals = [row for row in curve if row["final"]]
+    for row in finals:
+        lines.append(f"| {row['run']} | {row['grasps']} | {row['train_minutes']} | {row['success_rate']:.1%} | "
+                     f"{row['ci_low']:.1%}-{row['ci_high']:.1%} | {row['episodes']} |")  # fmt: skip
+    if not finals:
+        lines.append("| (no run has finished) | | | | | |")
+    lines += ["", "## Baselines on the same held-out episodes", "",
+              "| policy | success | 95% CI | attempts | episodes |", "|" + " --- |" * 5]  # fmt: skip
+    for name, result in baselines.items():
+        lines.append(f"| {name} | {result['success_rate']:.1%} | {result['ci_low']:.1%}-{result['ci_high']:.1%} | "
+                     f"{result['attempts']} | {result['episodes']} |")  # fmt: skip
+    lines += ["", "## Throughput and where the training time went", "",
+              "| run | grasps | updates | training min | eval min | grasps/min | updates/s | env and waiting | "
+              "learner | acting |", "|" + " --- |" * 10]  # fmt: skip
+    for t in timings:
+        lines.append(f"| {t['run']} | {t['grasps']} | {t['updates']} | {t['train_minutes']:.1f} | "
+                     f"{t['eval_minutes']:.1f} | {t['grasps_per_min']:.1f} | {t['updates_per_s']:.2f} | "
+                     f"{t['env_share']:.0%} | {t['learner_share']:.0%} | {t['act_share']:.0%} |")  # fmt: skip
+    lines += ["", "The learner updates while the workers simulate, so its share overlaps the env's: *env and "
+              "waiting* is the rest of the training time (the main process waiting for the workers).", ""]
+    return "\n".join(lines)
