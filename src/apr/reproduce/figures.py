@@ -20,7 +20,7 @@ import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import numpy as np
 import tyro
@@ -28,6 +28,7 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from PIL import Image, ImageDraw, ImageFont
 
+from apr.commands import checks
 from apr.foveation import foveate
 from apr.reproduce.episodes import (
     ActionSource,
@@ -64,7 +65,7 @@ class FiguresArgs:
     """Episodes in the GIF (the first ones); default: all of them."""
     steps: int = 5
     """Steps of the Figure 3 episode."""
-    renderer: str = "auto"
+    renderer: Literal["auto", "egl", "tiny"] = "auto"
     """auto, egl or tiny."""
 
 
@@ -409,6 +410,12 @@ def _write_captions(result: FigureSet, out: Path, label: str) -> None:
 
 
 def run(args: FiguresArgs) -> FigureSet:
+    checks.refuse("apr figures", [
+        checks.at_least("--episodes", args.episodes, 1), checks.at_least("--steps", args.steps, 1),
+        checks.at_least("--gif-episodes", args.gif_episodes, 0) if args.gif_episodes is not None else None,
+        checks.output_folder("--out", args.out),
+        None if args.run_dir.is_dir() else f"{args.run_dir} is not a run folder",
+    ])  # fmt: skip
     snapshot = load_run(args.run_dir)
     snapshots = [initial_snapshot(snapshot.config, args.run_dir.name)]
     snapshots += [load_training_checkpoint(path) for path in run_checkpoints(args.run_dir)]
