@@ -8,6 +8,7 @@ written directly, so each test costs well under a second once the module's run e
 from __future__ import annotations
 
 import dataclasses
+import gc
 import os
 import shutil
 import signal
@@ -345,3 +346,109 @@ def test_commands_check_their_arguments_before_any_work(run_dir: Path, args: lis
     monkeypatch.setattr(evaluation, "evaluate", lambda *a, **k: pytest.fail("evaluated before checking"))
     with pytest.raises(SystemExit, match=message):
         main([arg.replace("RUN", str(run_dir)) for arg in args])
+
+
+# ------------------------------------------------------------------------------------------ environments
+ACTIVE = "apr/ActiveGrasp-v0"
+VECTOR_SCRIPT = """
+    import sys
+    import gymnasium, numpy as np
+    import apr
+
+    make = lambda: gymnasium.make("apr/ActiveGrasp-v0", dof=4)  # the default renderer
+    if sys.argv[1] == "after-egl":  # this process renders with EGL before it forks
+        env = make()
+        env.reset(seed=0)
+        env.close()
+    envs = gymnasium.vector.AsyncVectorEnv([make] * 2)  # the default context: fork
+    try:
+        batch, _ = envs.reset(seed=0)
+    finally:
+        envs.close()
+    single = make()
+    observation, _ = single.reset(seed=0)
+    print(single.unwrapped.world.renderer, np.array_equal(batch["images"][0], observation["images"]))
+    single.close()
+"""
+
+
+def run_script(script: str, *args: str, timeout: float = 240) -> subprocess.CompletedProcess:
+    """``script`` in a fresh Python process; a hang fails the test after ``timeout`` seconds instead of blocking."""
+    env = {**os.environ, "PYTHONPATH": f"{SRC}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
+    try:
+        return subprocess.run([sys.executable, "-c", textwrap.dedent(script), *args], env=env, capture_output=True,
+                              text=True, timeout=timeout)  # fmt: skip
+    except subprocess.TimeoutExpired as error:
+        pytest.fail(f"hung for {timeout} s: {error.stderr}")
+
+
+def test_async_vector_env_with_the_default_renderer_and_fork_resets_quietly_and_renders_as_one_env():
+    """The default renderer in gymnasium's AsyncVectorEnv with its default fork context: no hang, each sub-env
+    renders as a lone environment does, and the console holds nothing of pybullet's (nor of its children)."""
+    result = run_script(VECTOR_SCRIPT, "clean")
+    assert result.returncode == 0, result.stderr
+    renderer, same = result.stdout.split()
+    assert same == "True", "a sub-env's images differ from a lone environment's for one seed"
+    assert result.stderr == "" and result.stdout == f"{renderer} True\n"  # nothing but the script's own line
+
+
+def test_a_fork_after_egl_fails_at_once_naming_the_fix():
+    result = run_script(VECTOR_SCRIPT, "after-egl")
+    if "egl" not in result.stdout and result.returncode == 0:
+        pytest.skip(f"EGL does not load here ({result.stdout.strip()}): nothing is inherited")
+    assert result.returncode != 0
+    assert "forked from one that had loaded pybullet's EGL renderer" in result.stderr
+    assert "context='spawn'" in result.stderr and "renderer='tiny'" in result.stderr
+
+
+def test_two_default_environments_in_one_process_see_the_same_images():
+    import gymnasium
+
+    first = gymnasium.make(ACTIVE, dof=4)
+    try:
+        observation, _ = first.reset(seed=3)
+        if first.unwrapped.world.renderer != "egl":
+            pytest.skip("EGL does not load here; the default renderer is TinyRenderer for the whole process")
+        with pytest.raises(RuntimeError, match="serves one world per process"):
+            gymnasium.make(ACTIVE, dof=4)  # it would render with TinyRenderer: refused, not mixed
+    finally:
+        first.close()
+    second = gymnasium.make(ACTIVE, dof=4)
+    try:
+        second.reset(seed=5)
+        again, _ = second.reset(seed=3)
+        assert second.unwrapped.world.renderer == "egl"
+        for key in observation:
+            assert np.array_equal(observation[key], again[key]), key
+    finally:
+        second.close()
+    with pytest.raises(RuntimeError, match="serves one world per process"):
+        gymnasium.vector.SyncVectorEnv([lambda: gymnasium.make(ACTIVE, dof=4)] * 2)
+    gc.collect()  # the vector's first sub-env, never returned, lets go of EGL
+
+
+def test_quiet_c_output_drops_pybullets_chatter_and_keeps_everything_else(capfd):
+    import ctypes
+
+    from apr.quiet import quiet_c_output
+
+    libc = ctypes.CDLL(None)
+    with quiet_c_output():
+        libc.printf(b"argv[0]=\nven = Mesa/X.org\n")  # buffered C output, as pybullet's
+        os.write(1, b"real output\nDestroy EGL OpenGL window.\n")
+        os.write(2, b"EGL device choice: -1 of 1.\nb3Error: a real error\npybullet build time: Jan 29 2025\n")
+    out, err = capfd.readouterr()
+    assert out == "real output\n" and err == "b3Error: a real error\n"
+
+
+@pytest.mark.slow  # about 35 s on 2 busy cores; the vector test above checks the console of every env step
+def test_apr_demo_prints_only_its_own_lines(tmp_path: Path):
+    result = run_script("from apr.cli import main; import sys; main(sys.argv[1:])",
+                        "demo", "--episodes", "1", "--gif-episodes", "1", "--out", str(tmp_path / "demo"))  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert result.stderr == ""
+    lines = result.stdout.splitlines()
+    bars = [k for k, line in enumerate(lines) if set(line) == {"="}]
+    own = lines[: bars[0]] + lines[bars[-1] + 1 :] if bars else lines  # the untrained-policy notice between bars
+    assert own[0].startswith("policy: ") and own[-1].startswith("report: "), own
+    assert all(line.startswith(("policy: ", "report: ")) or " held-out episodes succeeded: " in line for line in own)
