@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,8 +42,9 @@ class _ProcessRenderer:
     """What this process has decided about rendering."""
 
     pid: int
-    holder: object | None = None
-    """The world that holds the process's EGL renderer (claimed at construction, loaded at its first render)."""
+    holder_ref: weakref.ref | None = None
+    """The world that holds the process's EGL renderer (claimed at construction, loaded at its first render);
+    a world dropped without being closed lets go of it."""
     auto: str | None = None
     """What "auto" resolved to in this process, once known: "egl" or "tiny"."""
     egl_loaded: bool = False
@@ -65,6 +67,12 @@ def _process() -> _ProcessRenderer:
     return _state
 
 
+def egl_holder() -> object | None:
+    """The world of this process that holds its EGL renderer, if any."""
+    state = _process()
+    return state.holder_ref() if state.holder_ref is not None else None
+
+
 def claim_renderer(world: object, renderer: str) -> str:
     """The renderer a new world will use, "egl" or "tiny"; an EGL world holds the process's EGL renderer until
     :func:`release`. Raises RuntimeError where the request cannot be served without mixing renderers."""
@@ -81,7 +89,7 @@ def claim_renderer(world: object, renderer: str) -> str:
             "EGL hangs in such a child (Mesa's threads do not survive fork). Start environment processes with "
             f"'spawn' ({ONE_PROCESS_EACH}, or multiprocessing.get_context('spawn')), or use renderer='tiny'."
         )
-    if state.holder is not None:
+    if egl_holder() is not None:
         raise RuntimeError(
             f"renderer={renderer!r}: this process already has an EGL world open, and pybullet's EGL serves one "
             "world per process; a second world would render with TinyRenderer and see different images for the "
@@ -91,7 +99,7 @@ def claim_renderer(world: object, renderer: str) -> str:
         )
     if importlib.util.find_spec("eglRenderer") is None:
         return _unavailable(renderer, "pybullet's eglRenderer module is missing")
-    state.holder = world
+    state.holder_ref = weakref.ref(world)
     return "egl"
 
 
@@ -103,8 +111,8 @@ def load_egl(world: object, client: BulletClient, renderer: str) -> bool:
     with quiet_c_output():
         plugin = client.loadPlugin(spec.origin, "_eglRendererPlugin") if spec and spec.origin else -1
     if plugin < 0:
-        if state.holder is world:
-            state.holder = None
+        if egl_holder() is world:
+            state.holder_ref = None
         _unavailable(renderer, "pybullet's EGL plugin did not load")
         return False
     state.egl_loaded = True
@@ -126,9 +134,8 @@ def release(world: object, client: BulletClient) -> None:
     """Disconnect ``client``; if ``world`` held the process's EGL renderer, another world may take it."""
     with quiet_c_output():
         client.disconnect()
-    state = _process()
-    if state.holder is world:
-        state.holder = None
+    if egl_holder() is world:
+        _process().holder_ref = None
 
 
 @dataclass(frozen=True)
