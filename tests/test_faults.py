@@ -140,6 +140,9 @@ def test_eval_falls_back_too_and_a_damaged_file_is_named(run_dir: Path, capsys):
     assert "skipping checkpoint_00000003.pt" in capsys.readouterr().out
     with pytest.raises(SystemExit, match="checkpoint_00000003.pt: unreadable"):
         eval_checkpoint(run_dir / "checkpoints" / "checkpoint_00000003.pt")
+    from apr.reproduce.policies import load_run
+
+    assert load_run(run_dir).grasps == 2  # apr demo --checkpoint RUN and apr figures RUN
 
 
 def test_no_intact_checkpoint_is_a_clear_error_listing_each_file(run_dir: Path):
@@ -336,6 +339,8 @@ def test_help_lists_train_and_its_presets(capsys):
         (["demo", "--episodes", "0"], "--episodes must be at least 1"),
         (["demo", "--gif-episodes", "-1"], "--gif-episodes must be at least 0"),
         (["demo", "--out", "RUN/config.json"], "is a file, not a folder"),
+        (["demo", "--checkpoint", "RUN/config.json"], "is not a packaged checkpoint"),
+        (["demo", "--checkpoint", "RUN/checkpoints/replay_00000003.npz"], "replay_00000003.npz: unreadable"),
         (["render", "--steps", "-1"], "--steps must be at least 0"),
         (["figures", "RUN", "--episodes", "0"], "--episodes must be at least 1"),
         (["reproduce", "table1", "--seeds", "0"], "--seeds must be at least 1"),

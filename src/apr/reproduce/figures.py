@@ -43,6 +43,7 @@ from apr.reproduce.episodes import (
     upscale,
 )
 from apr.reproduce.policies import PolicySnapshot, initial_snapshot, load_run, load_training_checkpoint, run_checkpoints
+from apr.train.checkpoints import CheckpointError, read_checkpoint
 from apr.train.config import EnvConfig
 from apr.train.evaluation import EVAL_SEED
 
@@ -401,6 +402,15 @@ def ordered_pictures(result: FigureSet) -> list[tuple[str, Path]]:
     return [(name, result.paths[name]) for name in PICTURE_ORDER if name in result.paths]
 
 
+def _read_or_report(checkpoint: Path) -> dict | None:
+    """A checkpoint's state; None for a damaged one, which is reported and left out of Figure 6."""
+    try:
+        return read_checkpoint(checkpoint)
+    except CheckpointError as error:
+        print(f"Figure 6 leaves out {error}")
+        return None
+
+
 def _write_captions(result: FigureSet, out: Path, label: str) -> None:
     lines = ["# Figures", "", f"Policy: {label}.", ""]
     for name, path in ordered_pictures(result):
@@ -418,7 +428,8 @@ def run(args: FiguresArgs) -> FigureSet:
     ])  # fmt: skip
     snapshot = load_run(args.run_dir)
     snapshots = [initial_snapshot(snapshot.config, args.run_dir.name)]
-    snapshots += [load_training_checkpoint(path) for path in run_checkpoints(args.run_dir)]
+    states = {path: _read_or_report(path) for path in run_checkpoints(args.run_dir)}
+    snapshots += [load_training_checkpoint(path, state) for path, state in states.items() if state is not None]
     renderer = None if args.renderer == "auto" else args.renderer
     gqn_label = f"run {args.run_dir.name} (its initial weights, then each checkpoint it kept)"
     records = evaluation_episodes(snapshot, args.episodes, renderer)
