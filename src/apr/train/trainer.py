@@ -207,14 +207,14 @@ class Trainer:
                 conflicts = resume_conflicts(trained_with, config)
                 if conflicts:
                     raise ConfigError("\n".join(conflicts) + "\nStart a new run for that (apr train --preset ...).")
-                trainer._load(checkpoint, state)
-                grasps = trainer.progress.grasps
+                grasps = int(state["progress"]["grasps"])
                 if grasps >= config.total_grasps:
                     raise RunFinished(
                         f"{run_dir} is finished: {grasps:,} of {config.total_grasps:,} grasps, with its final "
                         f"evaluation (eval/). To train it further, give a larger budget: apr train --resume {run_dir} "
                         f"{flag('total_grasps')} N (N > {grasps:,})"
                     )
+                trainer._load(checkpoint, state)
                 _set_aside_newer(checkpoint)
                 prune(run_dir / "checkpoints", keep=len(checkpoint_files(run_dir)))  # temporary and orphan files
                 _forget_after(run_dir, grasps)
