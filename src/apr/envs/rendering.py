@@ -92,8 +92,9 @@ def claim_renderer(world: object, renderer: str) -> str:
     if egl_holder() is not None:
         raise RuntimeError(
             f"renderer={renderer!r}: this process already has an EGL world open, and pybullet's EGL serves one "
-            "world per process; a second world would render with TinyRenderer and see different images for the "
-            "same seed. Close the first, give every environment of this process renderer='tiny', or give each "
+            "world per process (a second EGL world would corrupt the first one's renderer; one with TinyRenderer "
+            "would see different images for the same seed). Close the first, give every environment of this "
+            "process renderer='tiny', or give each "
             f"environment its own process ({ONE_PROCESS_EACH}, or gymnasium.make_vec(..., "
             "vectorization_mode='async', vector_kwargs={'context': 'spawn'}))."
         )
@@ -121,6 +122,7 @@ def load_egl(world: object, client: BulletClient, renderer: str) -> bool:
 
 
 def _unavailable(renderer: str, why: str) -> str:
+    """EGL cannot serve: raise for "egl"; for "auto", TinyRenderer from now on in this process."""
     if renderer == "egl":
         raise RuntimeError(
             f"renderer='egl' was asked for but {why}. On a CPU machine install Mesa's EGL (Debian: apt-get "
