@@ -461,3 +461,19 @@ def test_apr_demo_prints_only_its_own_lines(tmp_path: Path):
     own = lines[: bars[0]] + lines[bars[-1] + 1 :] if bars else lines  # the untrained-policy notice between bars
     assert own[0].startswith("policy: ") and own[-1].startswith("report: "), own
     assert all(line.startswith(("policy: ", "report: ")) or " held-out episodes succeeded: " in line for line in own)
+
+
+def test_a_worker_is_recycled_after_its_episodes_and_plays_a_seed_as_before():
+    """Long runs replace each worker now and then (pybullet's EGL keeps removed bodies' memory); a fresh one
+    must continue exactly."""
+    from apr.train.workers import EnvWorkers
+
+    with EnvWorkers(1, ACTIVE, {"dof": 4, "target": "env", "renderer": "tiny"}, recycle_every=1) as workers:
+        workers.send_reset(0, 7)
+        first, _ = workers.receive(0)
+        before = workers.pid(0)
+        workers.send_reset(0, 7)
+        again, _ = workers.receive(0)
+        assert workers.pid(0) != before and workers.recycled == 1
+        for key in first:
+            assert np.array_equal(first[key], again[key]), key
