@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from apr.train.config import PRESETS, TrainConfig, preset
+from apr.train.config import PRESETS, ConfigError, TrainConfig, preset
 from apr.train.evaluation import wilson_interval
 from apr.train.replay import ReplayBuffer, ReplaySpec
 from apr.train.rollout import episode_seed
@@ -136,7 +136,7 @@ def test_a_replay_that_does_not_fit_is_refused(monkeypatch, tmp_path: Path):
 
     monkeypatch.setattr(trainer, "available_memory_bytes", lambda: 10 * 2**20)
     config = dataclasses.replace(preset("smoke"), runs_dir=tmp_path, run_name="too-big", replay_capacity=100_000)
-    with pytest.raises(SystemExit, match="replay-capacity"):
+    with pytest.raises(ConfigError, match="replay-capacity"):
         trainer.Trainer(config)
 
 

@@ -5,7 +5,12 @@ Importing ``apr`` registers the environments ``apr/ActiveGrasp-v0`` and ``apr/Pa
 
 import gymnasium
 
-from apr.envs.objects import object_ids
+from apr.quiet import quiet_c_output
+
+with quiet_c_output():  # pybullet prints its build time when first imported
+    import pybullet  # noqa: F401
+
+from apr.envs.objects import object_ids  # noqa: E402
 
 __all__ = ["object_ids"]
 __version__ = "0.1.0"

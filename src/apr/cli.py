@@ -14,7 +14,7 @@
     apr figures RUN_DIR --out DIR                 the paper's pictures (Figs 1, 3, 5, 6 and a GIF) of a run
     apr demo                                      a policy on held-out objects, with a short report
 
-Every subcommand takes ``--help``.
+Every subcommand takes ``--help``; ``apr --version`` prints the version.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from typing import Annotated
 
 import tyro
 
+from apr import __version__
 from apr.bench import env as env_bench
 from apr.bench import learner as learner_bench
 from apr.bench import learning as learning_bench
@@ -41,6 +42,13 @@ from apr.reproduce.demo import DemoArgs
 from apr.reproduce.figures import FiguresArgs
 from apr.reproduce.plot import PlotArgs
 from apr.reproduce.policies import PackageArgs
+from apr.train.checkpoints import CheckpointError, RunLocked
+from apr.train.config import ConfigError
+
+
+@dataclass
+class TrainHelp:
+    """Train APR from a preset, or continue a run: apr train --preset NAME | --resume RUN_DIR (see apr train --help)."""
 
 
 @dataclass
@@ -66,7 +74,8 @@ class ReproduceArgs:
 
 
 Command = (
-    Annotated[EvalArgs, tyro.conf.subcommand("eval")]
+    Annotated[TrainHelp, tyro.conf.subcommand("train")]  # listed here; ``main`` hands ``apr train`` to its own parser
+    | Annotated[EvalArgs, tyro.conf.subcommand("eval")]
     | Annotated[PresetsArgs, tyro.conf.subcommand("presets")]
     | Annotated[RenderArgs, tyro.conf.subcommand("render")]
     | Annotated[BenchArgs, tyro.conf.subcommand("bench")]
@@ -95,15 +104,21 @@ HANDLERS = {
 
 def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else argv
-    if argv[:1] == ["train"]:  # its defaults depend on --preset, so it parses its own arguments
-        train_command.train(argv[1:])
+    if argv[:1] == ["--version"]:
+        print(f"apr {__version__}")
         return
-    command = tyro.cli(Command, args=argv, config=(tyro.conf.OmitSubcommandPrefixes,), description=__doc__)
-    if isinstance(command, BenchArgs):
-        command = command.benchmark
-    elif isinstance(command, ReproduceArgs):
-        command = command.task
-    HANDLERS[type(command)](command)
+    try:
+        if argv[:1] == ["train"]:  # its defaults depend on --preset, so it parses its own arguments
+            train_command.train(argv[1:])
+            return
+        command = tyro.cli(Command, args=argv, config=(tyro.conf.OmitSubcommandPrefixes,), description=__doc__)
+        if isinstance(command, BenchArgs):
+            command = command.benchmark
+        elif isinstance(command, ReproduceArgs):
+            command = command.task
+        HANDLERS[type(command)](command)
+    except (ConfigError, RunLocked, CheckpointError) as error:  # refusals: a message, not a traceback
+        raise SystemExit("\n".join(f"apr {argv[0]}: error: {line}" for line in str(error).splitlines())) from None
 
 
 if __name__ == "__main__":

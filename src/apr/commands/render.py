@@ -9,11 +9,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import gymnasium as gym
 import imageio.v3 as iio
 import numpy as np
 
+from apr.commands import checks
 from apr.envs.scripted import scripted_grasp_action
 
 
@@ -27,13 +29,17 @@ class RenderArgs:
     """Episode seed: the objects, the target and the viewpoints."""
     steps: int = 5
     """Grasp steps to picture (the episode may end sooner with a grasp)."""
-    split: str = "train"
+    split: Literal["train", "test"] = "train"
     """Object split: train or test."""
-    renderer: str = "auto"
+    renderer: Literal["auto", "egl", "tiny"] = "auto"
     """auto, egl or tiny."""
 
 
 def run(args: RenderArgs) -> None:
+    checks.refuse("apr render", [
+        checks.at_least("--steps", args.steps, 0), checks.at_least("--seed", args.seed, 0),
+        checks.output_folder("--out", args.out),
+    ])  # fmt: skip
     args.out.mkdir(parents=True, exist_ok=True)
     written = _render_episode("apr/ActiveGrasp-v0", "active", args)
     written += _render_episode("apr/PassiveGrasp-v0", "passive", args)

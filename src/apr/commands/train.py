@@ -5,41 +5,115 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Literal
 
 import tyro
 
-from apr.train.config import PRESETS, TrainConfig, preset
+from apr.commands import checks
+from apr.model.config import ModelConfig
+from apr.train.config import DERIVED_MODEL_FIELDS, PRESETS, TrainConfig, flag, preset
+
+PresetName = Literal[tuple(PRESETS)]  # type: ignore[valid-type]
+
+
+@dataclass
+class _CliModelConfig(ModelConfig):
+    """Sizes, optimiser settings and speed options of the APR learner (paper values by default)."""
+
+    image_channels: Annotated[int, tyro.conf.Suppress] = 3
+    grasp_action_dim: Annotated[int, tyro.conf.Suppress] = 6
+    seed: Annotated[int, tyro.conf.Suppress] = 0
+
+
+@dataclass
+class _CliTrainConfig(TrainConfig):
+    """A training run of APR, without the model fields that follow from others (they are not options)."""
+
+    model: _CliModelConfig = field(default_factory=_CliModelConfig)
+
+
+@dataclass
+class TrainArgs:
+    """Train APR: ``apr train --preset NAME [--FIELD VALUE ...]`` or ``apr train --resume RUN_DIR``."""
+
+    config: Annotated[_CliTrainConfig, tyro.conf.arg(name="")]
+    preset: PresetName = "active-target"
+    """The preset a new run starts from (apr presets describes them); the defaults below are its values."""
+    resume: Annotated[Path | None, tyro.conf.arg(metavar="RUN_DIR")] = None
+    """Continue the run in RUN_DIR from its newest intact checkpoint; the defaults below are then the run's."""
+
+
+def _description(name: str | None, resuming: bool) -> str:
+    presets = ", ".join(PRESETS)
+    head = (
+        "Continue a run: the defaults below are the run's own; budgets, schedules, processes and speed options "
+        "may change, fields that shape its networks or replay may not."
+        if resuming
+        else f"Train APR from preset {name}: {PRESETS[name][0]}. Any field below overrides the preset."
+    )
+    return (
+        f"{head} Presets (--preset NAME): {presets}. Continue a run: --resume RUN_DIR. Not options, because "
+        "they follow from others: --model.image-channels (--env.target), --model.grasp-action-dim (--env.dof), "
+        "--model.seed (--seed); --model.gqn-anneal-updates follows --total-grasps unless --no-anneal-over-run."
+    )
+
+
+def _given(argv: list[str], path: str) -> bool:
+    """Whether ``argv`` sets the field ``path`` (``--a.b-c V``, ``--a.b_c=V``)."""
+    return any(token.split("=", 1)[0].replace("_", "-") == flag(path) for token in argv)
+
+
+def _to_cli(config: TrainConfig) -> _CliTrainConfig:
+    model = _CliModelConfig(**{f.name: getattr(config.model, f.name) for f in dataclasses.fields(ModelConfig)})
+    values = {f.name: getattr(config, f.name) for f in dataclasses.fields(TrainConfig) if f.name != "model"}
+    return _CliTrainConfig(**values, model=model)
+
+
+def _from_cli(config: TrainConfig) -> TrainConfig:
+    model = ModelConfig(**{f.name: getattr(config.model, f.name) for f in dataclasses.fields(ModelConfig)})
+    values = {f.name: getattr(config, f.name) for f in dataclasses.fields(TrainConfig) if f.name != "model"}
+    return TrainConfig(**values, model=model)
 
 
 def train(argv: list[str]) -> None:
     """``apr train --preset NAME [--field value ...]`` or ``apr train --resume RUN_DIR [--field value ...]``."""
-    from apr.train.trainer import Trainer
+    from apr.train.trainer import RunFinished, Trainer
 
-    parser = argparse.ArgumentParser(prog="apr train", add_help=False)
-    parser.add_argument("--preset", default="active-target", choices=list(PRESETS))
-    parser.add_argument("--resume", type=Path, default=None)
-    known, rest = parser.parse_known_args(argv)
-    if known.resume is not None:
-        default = Trainer.saved_config(known.resume)
-        config = tyro.cli(TrainConfig, default=default, args=rest, prog="apr train --resume RUN_DIR")
-        Trainer.resume(known.resume, config).train()
+    first = argparse.ArgumentParser(prog="apr train", add_help=False)
+    first.add_argument("--preset", default=None)
+    first.add_argument("--resume", type=Path, default=None)
+    known, _ = first.parse_known_args(argv)
+    derived = [f"{flag('model.' + name)} (it follows {source})" for name, source in DERIVED_MODEL_FIELDS.items()
+               if _given(argv, f"model.{name}")]  # fmt: skip
+    checks.refuse("apr train", [f"{', '.join(derived)}: not an option, set by the field it follows"] if derived else [])
+    if known.resume is not None and known.preset is not None:
+        checks.refuse("apr train", ["--preset starts a new run; a resumed run keeps the preset it started with"])
+    name = known.preset if known.preset in PRESETS else "active-target"  # tyro reports an unknown preset
+    default = Trainer.saved_config(known.resume) if known.resume is not None else preset(name)
+    shown = default.preset if default.preset in PRESETS else name
+    args = tyro.cli(TrainArgs, default=TrainArgs(config=_to_cli(default), preset=shown, resume=known.resume),
+                    args=argv, prog="apr train", description=_description(name, known.resume is not None))  # fmt: skip
+    config = _from_cli(args.config)
+    if _given(argv, "model.gqn_anneal_updates") and config.anneal_over_run:
+        checks.refuse("apr train", ["--model.gqn-anneal-updates is set from --total-grasps while --anneal-over-run "
+                                    "is on; add --no-anneal-over-run to set it yourself"])  # fmt: skip
+    try:
+        trainer = Trainer.resume(args.resume, config) if args.resume is not None else Trainer(config)
+    except RunFinished as finished:
+        print(finished)
         return
-    config = tyro.cli(TrainConfig, default=preset(known.preset), args=rest, prog=f"apr train --preset {known.preset}",
-                      description=f"Train APR. Preset {known.preset}: {PRESETS[known.preset][0]}. "
-                      "Any field below overrides the preset; --resume RUN_DIR continues a run.")  # fmt: skip
-    run_dir = Trainer(config).train()
+    run_dir = trainer.train()
     print(f"run folder: {run_dir}")
 
 
 @dataclass
 class EvalArgs:
-    """Evaluate a run's latest checkpoint, or a given checkpoint, on held-out objects."""
+    """Evaluate a run's newest intact checkpoint, or a given checkpoint, on held-out objects."""
 
     path: Annotated[Path, tyro.conf.Positional]
-    """A run folder (its latest checkpoint) or a checkpoint file."""
+    """A run folder (its newest intact checkpoint) or a checkpoint file (RUN/checkpoints/checkpoint_*.pt)."""
     episodes: int = 100
     """Episodes to run (SPEC: at least 100 per checkpoint)."""
     split: Literal["test", "train"] = "test"
@@ -50,17 +124,50 @@ class EvalArgs:
     """Environment processes; 0 = the run's number of workers."""
 
 
-def evaluate(args: EvalArgs) -> None:
-    import torch
+def eval_checkpoint(path: Path) -> tuple[Path, dict]:
+    """The checkpoint ``apr eval PATH`` evaluates, with its state: a run folder's newest intact one (those passed
+    over are reported with the reason), or the given file; SystemExit saying what is expected otherwise."""
+    from apr.train.checkpoints import CheckpointError, newest_intact, read_checkpoint
 
+    expected = "give a run folder or a training checkpoint (RUN/checkpoints/checkpoint_*.pt)"
+    path = Path(path)
+    if not path.exists():
+        raise SystemExit(f"apr eval: {path} does not exist; {expected}")
+    if path.is_dir():
+        if not (path / "checkpoints").is_dir() and not (path / "config.json").exists():
+            raise SystemExit(f"apr eval: {path} is not a run folder (no checkpoints/, no config.json); {expected}")
+        try:
+            found = newest_intact(path, with_replay=False)
+        except CheckpointError as error:
+            raise SystemExit(f"apr eval: {error}") from None
+        if found is None:
+            raise SystemExit(f"apr eval: {path} has no checkpoint yet (checkpoints/checkpoint_*.pt)")
+        return found
+    if path.name == "config.json":
+        raise SystemExit(f"apr eval: {path} is a run's configuration, not a checkpoint; give its run folder "
+                         f"({path.parent}) or one of its checkpoints/checkpoint_*.pt")  # fmt: skip
+    if path.suffix == ".npz":
+        raise SystemExit(f"apr eval: {path} is a replay file (what a checkpoint resumes with), not a checkpoint; "
+                         f"{expected}")  # fmt: skip
+    if path.suffix == ".json" or path.with_suffix(".json").exists():
+        raise SystemExit(f"apr eval: {path} is not a training checkpoint; a packaged checkpoint (NAME.json with its "
+                         f"weights) runs with apr demo --checkpoint {path}; {expected}")  # fmt: skip
+    try:
+        return path, read_checkpoint(path)
+    except CheckpointError as error:
+        raise SystemExit(f"apr eval: {error}; {expected}") from None
+
+
+def evaluate(args: EvalArgs) -> None:
     from apr.model.agent import APRAgent
     from apr.train.evaluation import evaluate as run_evaluation
-    from apr.train.trainer import latest_checkpoint
 
-    checkpoint = args.path if args.path.is_file() else latest_checkpoint(args.path)
-    if checkpoint is None or not checkpoint.exists():
-        raise SystemExit(f"no checkpoint found at {args.path}")
-    state = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    checks.refuse("apr eval", [
+        checks.at_least("--episodes", args.episodes, 1),
+        checks.at_least("--workers", args.workers, 0),
+        checks.output_file("--json", args.json) if args.json is not None else None,
+    ])  # fmt: skip
+    checkpoint, state = eval_checkpoint(args.path)
     config = TrainConfig.from_json(state["config"])
     agent = APRAgent(config.model)
     agent.load_state_dict(state["agent"])

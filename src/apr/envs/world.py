@@ -18,46 +18,90 @@ from pybullet_utils.bullet_client import BulletClient
 from apr.envs.config import CAMERA, OBJECTS, PHYSICS, SCENE
 from apr.envs.head import Head
 from apr.envs.objects import object_urdf
-from apr.envs.rendering import Camera, load_renderer, release, render
+from apr.envs.rendering import Camera, claim_renderer, load_egl, release, render
 from apr.envs.robot import KukaGripper
+from apr.quiet import quiet_c_output
 
 
 class GraspWorld:
     """The benchmark's scene in one physics client, optionally with the head.
 
+    The scene is built at first use (a reset, a step or a render), not at construction: a process that only
+    constructs worlds (``gymnasium.vector.AsyncVectorEnv`` reads the spaces of one) never loads EGL, so the
+    processes it forks can (``apr.envs.rendering``). An explicit ``renderer="egl"`` builds at once, so that an
+    unusable EGL fails at construction.
+
     Args:
-        renderer: "auto" (EGL if its plugin loads, else TinyRenderer), "egl" or "tiny".
+        renderer: "auto" (EGL if its plugin loads, else TinyRenderer; one renderer per process), "egl" or "tiny".
         with_head: load the xArm6 head (the active model); the passive model has none.
     """
 
     def __init__(self, renderer: str = "auto", with_head: bool = True):
-        self.client = BulletClient(connection_mode=p.DIRECT)
+        with quiet_c_output():  # pybullet prints argv[0] on connect
+            self.client: BulletClient | None = BulletClient(connection_mode=p.DIRECT)
+        self.renderer = claim_renderer(self, renderer)
+        """The renderer in use: "egl" or "tiny" ("egl" may still fall back to "tiny" at first use with "auto")."""
+        self._requested = renderer
+        self._with_head = with_head
+        self._built = False
+        self._pool: OrderedDict[int, int] = OrderedDict()  # object number -> body uid, least recent first
+        self._inertia: dict[int, tuple[float, float, float]] = {}
+        self.object_uids: list[int] = []
+        """Bodies of the objects in the scene this episode."""
+        self.object_numbers: list[int] = []
+        if renderer == "egl":
+            self.build()
+
+    def build(self) -> None:
+        """Load the renderer and the scene (done at first use; idempotent)."""
+        if self._built:
+            return
+        self._built = True
         c = self.client
-        self.renderer = load_renderer(c, renderer)
+        if c is None:
+            raise RuntimeError("this world is closed")
+        # The renderer first: pybullet's EGL plugin only draws bodies loaded after it.
+        if self.renderer == "egl" and not load_egl(self, c, self._requested):
+            self.renderer = "tiny"
         c.setAdditionalSearchPath(pybullet_data.getDataPath())
         # Sorted contact pairs: the solver order no longer depends on which objects the pool loaded before.
         c.setPhysicsEngineParameter(numSolverIterations=PHYSICS.solver_iterations, deterministicOverlappingPairs=1)
         c.setTimeStep(PHYSICS.time_step)
         c.setGravity(0, 0, PHYSICS.gravity)
         c.loadURDF("plane.urdf", (0, 0, -1))
-        self.table_uid = c.loadURDF("table/table.urdf", SCENE.table_position)
-        self.tray_uid = c.loadURDF("tray/tray.urdf", SCENE.tray_position, SCENE.tray_orientation)
-        self.arm = KukaGripper(c, f"{pybullet_data.getDataPath()}/kuka_iiwa/kuka_with_gripper2.sdf")
-        self.head = Head(c) if with_head else None
-        self._pool: OrderedDict[int, int] = OrderedDict()  # object number -> body uid, least recent first
-        self._inertia: dict[int, tuple[float, float, float]] = {}
-        self.object_uids: list[int] = []
-        """Bodies of the objects in the scene this episode."""
-        self.object_numbers: list[int] = []
+        self._table_uid = c.loadURDF("table/table.urdf", SCENE.table_position)
+        self._tray_uid = c.loadURDF("tray/tray.urdf", SCENE.tray_position, SCENE.tray_orientation)
+        self._arm = KukaGripper(c, f"{pybullet_data.getDataPath()}/kuka_iiwa/kuka_with_gripper2.sdf")
+        self._head = Head(c) if self._with_head else None
         if self.renderer == "egl":
             # The EGL renderer's first frames lack the shadows of later ones; render them now, so that an
             # episode's images do not depend on whether it is the first in this world.
             for camera in passive_cameras()[:2]:
                 self.render(camera)
 
+    @property
+    def arm(self) -> KukaGripper:
+        self.build()
+        return self._arm
+
+    @property
+    def head(self) -> Head | None:
+        self.build()
+        return self._head
+
+    @property
+    def table_uid(self) -> int:
+        self.build()
+        return self._table_uid
+
+    @property
+    def tray_uid(self) -> int:
+        self.build()
+        return self._tray_uid
+
     def close(self) -> None:
-        if self.client is not None:
-            release(self.client)
+        if getattr(self, "client", None) is not None:
+            release(self, self.client)
             self.client = None
 
     def __del__(self) -> None:
@@ -65,6 +109,7 @@ class GraspWorld:
 
     # ----------------------------------------------------------------------------------------------- physics
     def step_simulation(self, steps: int = 1) -> None:
+        self.build()
         for _ in range(steps):
             self.client.stepSimulation()
 
@@ -170,6 +215,7 @@ class GraspWorld:
     # --------------------------------------------------------------------------------------------- rendering
     def render(self, camera: Camera, segmentation: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
         """RGB (uint8, (256, 256, 3)) and, when asked, body ids (int32, (256, 256)) seen by ``camera``."""
+        self.build()
         return render(
             self.client, camera, CAMERA.render_size, self.renderer, CAMERA.near, CAMERA.far, segmentation
         )

@@ -20,6 +20,7 @@ from typing import Any, Literal
 
 import torch
 
+from apr.commands import checks
 from apr.model.config import ModelConfig
 from apr.reproduce.runs import final_eval
 from apr.reproduce.table import PAPER_PRESETS, write_table1
@@ -219,6 +220,14 @@ def run(args: Table1Args, overrides: dict[str, Any] | None = None) -> Path:
     Args:
         overrides: further TrainConfig fields for every run (tests use them to shrink the smoke preset).
     """
+    checks.refuse("apr reproduce table1", [
+        checks.at_least("--seeds", args.seeds, 1), checks.at_least("--parallel", args.parallel, 1),
+        checks.at_least("--workers", args.workers, 0),
+        *(checks.at_least(f"--{name.replace('_', '-')}", getattr(args, name), 1)
+          for name in ("grasps", "eval_episodes", "replay_capacity") if getattr(args, name) is not None),
+        checks.at_least("--random-grasps", args.random_grasps, 0) if args.random_grasps is not None else None,
+        checks.output_folder("--out", args.out),
+    ])  # fmt: skip
     seeds = list(range(args.seeds))
     plans = plan_runs(
         args.presets, seeds, args.out, {**overrides_from_args(args), **(overrides or {})}, args.tiny_model

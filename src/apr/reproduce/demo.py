@@ -16,7 +16,9 @@ import json
 import textwrap
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
+from apr.commands import checks
 from apr.reproduce.figures import FigureSet, evaluation_episodes, make_figures, ordered_pictures
 from apr.reproduce.policies import (
     PACKAGED_DIR,
@@ -42,7 +44,7 @@ class DemoArgs:
     """A run folder, a training checkpoint or a packaged checkpoint; default: the packaged one, if any."""
     gif_episodes: int = 2
     """Episodes shown in the GIF (the first ones of the evaluation)."""
-    renderer: str = "auto"
+    renderer: Literal["auto", "egl", "tiny"] = "auto"
     """auto, egl or tiny."""
 
 
@@ -86,6 +88,12 @@ def choose_policy(checkpoint: Path | None, packaged_dir: Path = PACKAGED_DIR) ->
 
 
 def run(args: DemoArgs, packaged_dir: Path = PACKAGED_DIR) -> DemoResult:
+    checks.refuse("apr demo", [
+        checks.at_least("--episodes", args.episodes, 1),
+        checks.at_least("--gif-episodes", args.gif_episodes, 0),
+        checks.output_folder("--out", args.out),
+        f"--checkpoint {args.checkpoint} does not exist" if args.checkpoint and not args.checkpoint.exists() else None,
+    ])  # fmt: skip
     snapshot = choose_policy(args.checkpoint, packaged_dir)
     notice = untrained_notice(snapshot, packaged_dir)
     if notice:

@@ -20,7 +20,7 @@ import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import numpy as np
 import tyro
@@ -28,6 +28,7 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from PIL import Image, ImageDraw, ImageFont
 
+from apr.commands import checks
 from apr.foveation import foveate
 from apr.reproduce.episodes import (
     ActionSource,
@@ -42,6 +43,7 @@ from apr.reproduce.episodes import (
     upscale,
 )
 from apr.reproduce.policies import PolicySnapshot, initial_snapshot, load_run, load_training_checkpoint, run_checkpoints
+from apr.train.checkpoints import CheckpointError, read_checkpoint
 from apr.train.config import EnvConfig
 from apr.train.evaluation import EVAL_SEED
 from apr.train.rollout import stack
@@ -65,7 +67,7 @@ class FiguresArgs:
     """Episodes in the GIF (the first ones); default: all of them."""
     steps: int = 5
     """Steps of the Figure 3 episode."""
-    renderer: str = "auto"
+    renderer: Literal["auto", "egl", "tiny"] = "auto"
     """auto, egl or tiny."""
 
 
@@ -397,6 +399,15 @@ def ordered_pictures(result: FigureSet) -> list[tuple[str, Path]]:
     return [(name, result.paths[name]) for name in PICTURE_ORDER if name in result.paths]
 
 
+def _read_or_report(checkpoint: Path) -> dict | None:
+    """A checkpoint's state; None for a damaged one, which is reported and left out of Figure 6."""
+    try:
+        return read_checkpoint(checkpoint)
+    except CheckpointError as error:
+        print(f"Figure 6 leaves out {error}")
+        return None
+
+
 def _write_captions(result: FigureSet, out: Path, label: str) -> None:
     lines = ["# Figures", "", f"Policy: {label}.", ""]
     for name, path in ordered_pictures(result):
@@ -406,9 +417,16 @@ def _write_captions(result: FigureSet, out: Path, label: str) -> None:
 
 
 def run(args: FiguresArgs) -> FigureSet:
+    checks.refuse("apr figures", [
+        checks.at_least("--episodes", args.episodes, 1), checks.at_least("--steps", args.steps, 1),
+        checks.at_least("--gif-episodes", args.gif_episodes, 0) if args.gif_episodes is not None else None,
+        checks.output_folder("--out", args.out),
+        None if args.run_dir.is_dir() else f"{args.run_dir} is not a run folder",
+    ])  # fmt: skip
     snapshot = load_run(args.run_dir)
     snapshots = [initial_snapshot(snapshot.config, args.run_dir.name)]
-    snapshots += [load_training_checkpoint(path) for path in run_checkpoints(args.run_dir)]
+    states = {path: _read_or_report(path) for path in run_checkpoints(args.run_dir)}
+    snapshots += [load_training_checkpoint(path, state) for path, state in states.items() if state is not None]
     renderer = None if args.renderer == "auto" else args.renderer
     gqn_label = f"run {args.run_dir.name} (its initial weights, then each checkpoint it kept)"
     records = evaluation_episodes(snapshot, args.episodes, renderer)

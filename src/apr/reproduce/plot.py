@@ -18,6 +18,7 @@ import tyro
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
+from apr.commands import checks
 from apr.reproduce.runs import eval_curve, find_run_dirs, read_config
 from apr.reproduce.table import PAPER_TABLE1
 
@@ -108,6 +109,11 @@ def plot_learning_curves(run_dirs: Iterable[Path], title: str = "") -> Figure:
 def run(args: PlotArgs) -> Path:
     if not args.run_dirs:
         raise SystemExit("apr plot: give at least one run folder (or a folder of runs)")
+    checks.refuse("apr plot", [
+        f"--out {args.out} is a folder; give a file name" if args.out.is_dir() else None,
+        checks.output_folder("--out", args.out.parent),
+        *(f"{path} does not exist" for path in args.run_dirs if not path.exists()),
+    ])  # fmt: skip
     args.out.parent.mkdir(parents=True, exist_ok=True)
     plot_learning_curves(args.run_dirs, args.title).savefig(args.out, dpi=120)
     print(f"wrote {args.out}")

@@ -23,6 +23,7 @@ import tyro
 from apr.machine import machine_description
 from apr.model.agent import APRAgent
 from apr.reproduce.runs import final_eval
+from apr.train.checkpoints import CheckpointError, newest_intact, read_checkpoint
 from apr.train.config import TrainConfig, preset
 
 PACKAGED_DIR = Path(__file__).parent / "checkpoints"
@@ -74,9 +75,13 @@ def run_checkpoints(run_dir: Path) -> list[Path]:
     return sorted((run_dir / "checkpoints").glob("checkpoint_*.pt"))
 
 
-def load_training_checkpoint(path: Path) -> PolicySnapshot:
-    """A training checkpoint (``RUN/checkpoints/checkpoint_XXXXXXXX.pt``)."""
-    state = torch.load(path, map_location="cpu", weights_only=False)
+def load_training_checkpoint(path: Path, state: dict | None = None) -> PolicySnapshot:
+    """A training checkpoint (``RUN/checkpoints/checkpoint_XXXXXXXX.pt``; ``state``: its contents, if read)."""
+    if state is None:
+        try:
+            state = read_checkpoint(path)
+        except CheckpointError as error:
+            raise SystemExit(str(error)) from None
     config = TrainConfig.from_json(state["config"])
     agent = new_agent(config)
     agent.load_state_dict(state["agent"])
@@ -90,11 +95,14 @@ def load_training_checkpoint(path: Path) -> PolicySnapshot:
 
 
 def load_run(run_dir: Path) -> PolicySnapshot:
-    """The latest checkpoint of a run folder."""
-    checkpoints = run_checkpoints(run_dir)
-    if not checkpoints:
+    """The newest intact checkpoint of a run folder (newer damaged ones are reported and passed over)."""
+    try:
+        found = newest_intact(run_dir, with_replay=False)
+    except CheckpointError as error:
+        raise SystemExit(str(error)) from None
+    if found is None:
         raise SystemExit(f"{run_dir} has no checkpoint (checkpoints/checkpoint_*.pt)")
-    return load_training_checkpoint(checkpoints[-1])
+    return load_training_checkpoint(*found)
 
 
 def packaged_checkpoints(directory: Path = PACKAGED_DIR) -> list[Path]:
@@ -158,6 +166,9 @@ def load_policy(path: Path) -> PolicySnapshot:
     if not path.exists():
         raise SystemExit(f"{path} does not exist")
     if path.suffix == ".json" or path.with_suffix(".json").exists():
+        if path.with_suffix(".json") not in packaged_checkpoints(path.parent):
+            raise SystemExit(f"{path} is not a packaged checkpoint (no {MANIFEST_FORMAT} manifest); give a run "
+                             "folder, a training checkpoint or a packaged checkpoint's NAME.json")  # fmt: skip
         return load_packaged(path)
     return load_training_checkpoint(path)
 

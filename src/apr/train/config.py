@@ -11,6 +11,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import json
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +23,15 @@ from apr.model.config import ModelConfig
 
 STEPS_PER_GRASP_ESTIMATE = 10
 """Grasp steps an episode takes on average (a guess for sizing schedules; episodes take 1 to 15)."""
+
+
+class ConfigError(ValueError):
+    """A configuration that cannot run; the message names the command-line flag of each field at fault."""
+
+
+def flag(path: str) -> str:
+    """The command-line flag of the field ``path`` ("model.batch_size" -> "--model.batch-size")."""
+    return "--" + path.replace("_", "-")
 
 
 @dataclass
@@ -119,6 +129,30 @@ class TrainConfig:
         workers = self.workers or os.cpu_count() or 1
         return dataclasses.replace(self, model=model, workers=workers, eval_workers=self.eval_workers or workers)
 
+    def problems(self) -> list[str]:
+        """What makes this configuration unrunnable, one sentence per field, each naming its flag (empty: none)."""
+        problems = [f"{flag(path)} {message}" for path, message in _field_problems(self)]
+        if self.replay_capacity >= 1 and self.model.batch_size >= 1 and self.replay_capacity < self.model.batch_size:
+            problems.append(f"--replay-capacity {self.replay_capacity} is smaller than one learner batch "
+                            f"(--model.batch-size {self.model.batch_size}): the learner would never start")  # fmt: skip
+        if self.run_name and (self.run_name in (".", "..") or "/" in self.run_name or os.sep in self.run_name):
+            problems.append(f"--run-name {self.run_name!r} must be a plain folder name (no path separators)")
+        if self.runs_dir.exists() and not self.runs_dir.is_dir():
+            problems.append(f"--runs-dir {self.runs_dir} is a file, not a folder")
+        device = self.model.device
+        if device.startswith("cuda"):
+            import torch
+
+            if not torch.cuda.is_available():
+                problems.append(f"--model.device {device}: torch sees no CUDA device here; use auto or cpu")
+        return problems
+
+    def check(self) -> None:
+        """Raise :class:`ConfigError` listing every problem of :meth:`problems`."""
+        problems = self.problems()
+        if problems:
+            raise ConfigError("\n".join(problems))
+
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), indent=2, default=str)
 
@@ -129,6 +163,83 @@ class TrainConfig:
         model["head_channels"] = tuple(model["head_channels"])
         return cls(env=EnvConfig(**data.pop("env")), model=ModelConfig(**model), runs_dir=Path(data.pop("runs_dir")),
                    **data)  # fmt: skip
+
+
+FIXED_ON_RESUME = {"preset", "seed", "replay_capacity", "runs_dir", "run_name"}
+"""Run fields a resumed run keeps: the episodes' seeds, the replay's layout, the folder. Every other run field
+(budgets, schedules, processes) may change on resume."""
+CHANGEABLE_ON_RESUME = {
+    "env.renderer", "model.device", "model.precision", "model.channels_last", "model.compile",
+    "model.gqn_anneal_updates",
+}  # fmt: skip
+"""Environment and model fields a resumed run may change; every other one shapes the saved networks, optimiser
+states or replay, or what they were trained on."""
+DERIVED_MODEL_FIELDS = {"image_channels": "--env.target", "grasp_action_dim": "--env.dof", "seed": "--seed"}
+"""Model fields that follow from other fields (``TrainConfig.resolved``), with the flag they follow from."""
+
+
+def resume_conflicts(saved: TrainConfig, new: TrainConfig) -> list[str]:
+    """Why ``new`` cannot continue a run saved with ``saved`` (both resolved): one sentence per field that
+    differs and may not change on resume, naming its flag (empty: it can)."""
+    conflicts = []
+    for path, before, after in _differences(saved, new):
+        section, _, name = path.rpartition(".")
+        if (section == "" and path not in FIXED_ON_RESUME) or path in CHANGEABLE_ON_RESUME:
+            continue
+        if section == "model" and name in DERIVED_MODEL_FIELDS:
+            continue  # follows from a field compared on its own
+        conflicts.append(f"{flag(path)} cannot change when resuming (the run has {before!r}, asked: {after!r})")
+    return conflicts
+
+
+def _differences(first: Any, second: Any, prefix: str = "") -> list[tuple[str, Any, Any]]:
+    """(field path, first value, second value) of every field that differs, nested dataclasses walked."""
+    found = []
+    for item in dataclasses.fields(first):
+        a, b = getattr(first, item.name), getattr(second, item.name)
+        if dataclasses.is_dataclass(a) and dataclasses.is_dataclass(b):
+            found += _differences(a, b, f"{prefix}{item.name}.")
+        elif a != b:
+            found.append((f"{prefix}{item.name}", a, b))
+    return found
+
+
+AT_LEAST_ONE = {"total_grasps", "eval_episodes", "replay_capacity", "keep_checkpoints"}
+"""Run fields that must be at least 1; every other number of a run must be at least 0."""
+MODEL_AT_LEAST_ZERO = {"seed"}
+"""Model fields that may be 0; every other integer of the model must be at least 1."""
+
+
+def _field_problems(config: TrainConfig) -> list[tuple[str, str]]:
+    """(field path, what is wrong) for numbers out of range: negative counts, zero sizes, NaN or infinite values."""
+    found: list[tuple[str, str]] = []
+
+    def number(path: str, value: object, low: float, strict: bool = False) -> None:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            return
+        if not math.isfinite(value):
+            found.append((path, f"must be a finite number, got {value}"))
+        elif value < low or (strict and value == low):
+            found.append((path, f"must be {'above' if strict else 'at least'} {low:g}, got {value}"))
+
+    for item in dataclasses.fields(config):
+        if item.name not in ("env", "model"):
+            number(item.name, getattr(config, item.name), 1 if item.name in AT_LEAST_ONE else 0)
+    model = config.model
+    for item in dataclasses.fields(model):
+        value, kind = getattr(model, item.name), str(item.type)
+        if kind == "int":
+            number(f"model.{item.name}", value, 0 if item.name in MODEL_AT_LEAST_ZERO else 1)
+        elif kind == "float" and not item.name.startswith("log_std"):
+            number(f"model.{item.name}", value, 0.0, strict=item.name != "gamma")
+        elif isinstance(value, tuple) and (not value or any(isinstance(v, int) and v < 1 for v in value)):
+            found.append((f"model.{item.name}", f"must be positive sizes, got {value}"))
+    for name in ("gamma", "tau"):
+        if getattr(model, name) > 1:
+            found.append((f"model.{name}", f"must be at most 1, got {getattr(model, name)}"))
+    if model.log_std_min >= model.log_std_max:
+        found.append(("model.log_std_min", f"must be below --model.log-std-max ({model.log_std_max})"))
+    return found
 
 
 def _preset(name: str, description: str, **changes: Any) -> tuple[str, tuple[str, TrainConfig]]:

@@ -7,8 +7,9 @@ The loop, one round at a time:
   3. between rounds: metrics.csv and TensorBoard, evaluation on held-out objects, checkpoints.
 
 A run folder holds ``config.json`` (the resolved configuration), ``metrics.csv``, ``eval/``, ``checkpoints/``
-and ``tb/`` (TensorBoard). ``train(config, resume=run_dir)`` continues a run exactly where its last
-checkpoint left it.
+and ``tb/`` (TensorBoard), and ``train.lock`` while a process trains in it. ``Trainer.resume(run_dir)``
+continues a run exactly where its newest intact checkpoint left it. Nothing is written before the whole
+configuration has been checked: a refused start leaves no folder, a refused resume leaves the folder as it was.
 """
 
 from __future__ import annotations
@@ -29,7 +30,20 @@ import torch
 from tqdm import tqdm
 
 from apr.model.agent import APRAgent, FixationBatch, GraspBatch, Observation
-from apr.train.config import TrainConfig
+from apr.train.checkpoints import (
+    CheckpointError,
+    RunLock,
+    checkpoint_files,
+    fsync_file,
+    newest_intact,
+    prune,
+    read_checkpoint,
+    replay_file,
+    verify_replay,
+    write_atomically,
+    write_text_atomically,
+)
+from apr.train.config import ConfigError, TrainConfig, flag, resume_conflicts
 from apr.train.evaluation import evaluate
 from apr.train.replay import ReplayBuffer, ReplaySpec
 from apr.train.rollout import EpisodeResult, episode_seed, run_round
@@ -74,11 +88,28 @@ class Progress:
         return self.wall_s - self.eval_s
 
 
-def make_run_dir(config: TrainConfig) -> Path:
+class RunFinished(Exception):
+    """A resumed run has already spent its grasp budget; the message says how to extend it."""
+
+
+def run_dir_for(config: TrainConfig) -> Path:
+    """The folder a new run of ``config`` gets."""
     name = config.run_name or f"{config.preset}__s{config.seed}__{time.strftime('%Y%m%d-%H%M%S')}"
-    run_dir = config.runs_dir / name
+    return config.runs_dir / name
+
+
+def check_new_run_dir(run_dir: Path) -> None:
+    """Refuse a folder that exists or cannot be made, before any work."""
     if run_dir.exists():
         raise SystemExit(f"{run_dir} exists: continue it with `apr train --resume {run_dir}`, or choose a --run-name")
+    parent = next((p for p in run_dir.parents if p.exists()), Path("."))
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise ConfigError(f"--runs-dir {run_dir.parent}: cannot create folders in {parent}")
+
+
+def make_run_dir(config: TrainConfig) -> Path:
+    run_dir = run_dir_for(config)
+    check_new_run_dir(run_dir)
     run_dir.mkdir(parents=True)
     return run_dir
 
@@ -96,14 +127,15 @@ def available_memory_bytes() -> int | None:
 
 
 class Trainer:
-    """One run. ``Trainer(config).train()`` starts it; ``Trainer.resume(run_dir).train()`` continues it."""
+    """One run. ``Trainer(config).train()`` starts it; ``Trainer.resume(run_dir).train()`` continues it.
 
-    def __init__(self, config: TrainConfig, run_dir: Path | None = None):
+    ``Trainer(config, run_dir=FOLDER)`` starts a new run in a given folder (which may exist). The run folder is
+    locked (``train.lock``) from then until ``train()`` returns or :meth:`close` is called.
+    """
+
+    def __init__(self, config: TrainConfig, run_dir: Path | None = None, *, _resuming: bool = False):
+        config.check()  # everything is checked and built before a run folder is touched
         self.config = config = config.resolved()
-        self.run_dir = run_dir or make_run_dir(config)
-        (self.run_dir / "config.json").write_text(config.to_json())
-        for sub in ("checkpoints", "eval"):
-            (self.run_dir / sub).mkdir(exist_ok=True)
 
         spec = ReplaySpec(
             image_shape=(3, config.model.image_size, config.model.image_size, config.env.image_channels),
@@ -115,11 +147,15 @@ class Trainer:
         print(f"replay: {config.replay_capacity:,} transitions, {need / 2**30:.2f} GiB"
               + (f" of {have / 2**30:.1f} GiB available" if have else ""))  # fmt: skip
         if have is not None and need > 0.8 * have:
-            raise SystemExit(
+            raise ConfigError(
                 f"the replay buffer needs {need / 2**30:.1f} GiB but only {have / 2**30:.1f} GiB is available: "
                 f"lower --replay-capacity (now {config.replay_capacity:,})"
             )
-        self.replay = ReplayBuffer(config.replay_capacity, spec)
+        try:
+            self.replay = ReplayBuffer(config.replay_capacity, spec)
+        except MemoryError:
+            raise ConfigError(f"the replay buffer ({need / 2**30:.1f} GiB) does not fit in memory: lower "
+                              f"--replay-capacity (now {config.replay_capacity:,})") from None  # fmt: skip
         self.agent = APRAgent(config.model)
         if self.agent.device.type == "cpu":  # leave the env workers their cores (docs/decisions.md)
             torch.set_num_threads(max(1, (os.cpu_count() or 1) - config.workers))
@@ -127,31 +163,96 @@ class Trainer:
         self.progress = Progress()
         self._recorder = _Recorder(self.replay)
         self._stop_requested = False
+        self._lock: RunLock | None = None
+        if not _resuming:  # a new run: make (or take) its folder, lock it, save the configuration
+            self.run_dir = run_dir or make_run_dir(config)
+            self.run_dir.mkdir(parents=True, exist_ok=True)
+            self._lock = RunLock(self.run_dir)
+            write_text_atomically(self.run_dir / "config.json", config.to_json())
+            for sub in ("checkpoints", "eval"):
+                (self.run_dir / sub).mkdir(exist_ok=True)
+
+    def close(self) -> None:
+        """Release the run folder's lock (``train()`` does when it returns)."""
+        if self._lock is not None:
+            self._lock.release()
 
     @staticmethod
     def saved_config(run_dir: Path) -> TrainConfig:
-        """The resolved configuration a run folder was started with."""
+        """The resolved configuration a run folder was started with (``config.json``; if that is unreadable, the
+        one in its newest intact checkpoint)."""
         path = run_dir / "config.json"
-        if not path.exists():
+        if not path.exists() and not checkpoint_files(run_dir):
             raise SystemExit(f"{run_dir} is not a run folder (no config.json)")
-        return TrainConfig.from_json(path.read_text())
+        try:
+            return TrainConfig.from_json(path.read_text())
+        except (OSError, ValueError, TypeError, KeyError) as error:
+            found = newest_intact(run_dir, with_replay=False, report=lambda line: None)
+            if found is None:
+                raise SystemExit(f"{path} is unreadable ({error}) and the run has no checkpoint") from None
+            print(f"{path} is unreadable ({error}): using the configuration saved in {found[0].name}")
+            return TrainConfig.from_json(found[1]["config"])
 
     @classmethod
     def resume(cls, run_dir: Path, config: TrainConfig | None = None) -> Trainer:
-        """Continue the run in ``run_dir`` from its latest checkpoint (``config``: the saved one, or a changed
-        copy of it, e.g. with more ``total_grasps``)."""
-        trainer = cls(config or cls.saved_config(run_dir), run_dir=run_dir)
-        checkpoint = latest_checkpoint(run_dir)
-        if checkpoint is None:
-            raise SystemExit(f"{run_dir} has no checkpoint to resume from")
-        state = torch.load(checkpoint, map_location=trainer.agent.device, weights_only=False)
-        trainer.agent.load_state_dict(state["agent"])
-        trainer.progress = Progress(**state["progress"])
-        trainer.rng.bit_generator.state = state["rng"]
-        trainer.replay.load(run_dir / "checkpoints" / state["replay"])
-        _truncate_metrics(run_dir / "metrics.csv", trainer.progress.grasps)
-        print(f"resumed {run_dir} at {trainer.progress.grasps} grasps from {checkpoint.name}")
+        """Continue the run in ``run_dir`` from its newest intact checkpoint (``config``: the saved one, or a
+        changed copy of it, e.g. with more ``total_grasps``).
+
+        Nothing in the folder changes until the new configuration has been checked against the checkpoint's:
+        a field that cannot change on resume is refused by name (:class:`ConfigError`), a finished run raises
+        :class:`RunFinished`, and a folder another process trains in raises ``RunLocked``. A run that crashed
+        before its first checkpoint starts again from the beginning.
+        """
+        run_dir = Path(run_dir)
+        saved = cls.saved_config(run_dir)
+        trainer = cls(config or saved, _resuming=True)
+        config = trainer.config
+        lock = RunLock(run_dir)
+        try:
+            found = newest_intact(run_dir, with_replay=True, map_location=trainer.agent.device)
+            if found is None:
+                print(f"{run_dir} has no checkpoint yet: starting it from the beginning")
+                _clear_logs(run_dir)
+            else:
+                checkpoint, state = found
+                trained_with = TrainConfig.from_json(state["config"]).resolved()
+                conflicts = resume_conflicts(trained_with, config)
+                if conflicts:
+                    raise ConfigError("\n".join(conflicts) + "\nStart a new run for that (apr train --preset ...).")
+                grasps = int(state["progress"]["grasps"])
+                if grasps >= config.total_grasps:
+                    raise RunFinished(
+                        f"{run_dir} is finished: {grasps:,} of {config.total_grasps:,} grasps, with its final "
+                        f"evaluation (eval/). To train it further, give a larger budget: apr train --resume {run_dir} "
+                        f"{flag('total_grasps')} N (N > {grasps:,})"
+                    )
+                trainer._load(checkpoint, state)
+                _set_aside_newer(checkpoint)
+                prune(run_dir / "checkpoints", keep=len(checkpoint_files(run_dir)))  # temporary and orphan files
+                _forget_after(run_dir, grasps)
+                print(f"resumed {run_dir} at {trainer.progress.grasps} grasps from {checkpoint.name}")
+            write_text_atomically(run_dir / "config.json", config.to_json())
+            for sub in ("checkpoints", "eval"):
+                (run_dir / sub).mkdir(exist_ok=True)
+        except BaseException:
+            lock.release()
+            raise
+        trainer._lock, trainer.run_dir = lock, run_dir
         return trainer
+
+    def _load(self, checkpoint: Path, state: dict) -> None:
+        """Restore the agent, counters, generator and replay from a checkpoint (already read and verified)."""
+        try:
+            self.agent.load_state_dict(state["agent"])
+        except (RuntimeError, KeyError, ValueError) as error:
+            reason = str(error).strip().splitlines()[0]
+            raise ConfigError(f"{checkpoint.name} does not fit this configuration: {reason}") from None
+        self.progress = Progress(**state["progress"])
+        self.rng.bit_generator.state = state["rng"]
+        try:
+            self.replay.load(replay_file(checkpoint, state))
+        except (ValueError, IndexError) as error:
+            raise ConfigError(f"{state['replay']} does not fit this configuration's replay: {error}") from None
 
     # ------------------------------------------------------------------------------------------------ loop
     def train(self) -> Path:
@@ -189,6 +290,7 @@ class Trainer:
             bar.close()
             workers.close()
             self.writer.close()
+            self.close()
         return self.run_dir
 
     def _finished(self) -> bool:
@@ -349,11 +451,13 @@ class Trainer:
 
     # ------------------------------------------------------------------------------------------ checkpoints
     def _checkpoint(self) -> Path:
-        """Write the replay, then the checkpoint that names it, each atomically; prune old ones."""
+        """Write the replay, then the checkpoint that names it, each atomically; read both back; only then
+        delete the pairs beyond ``keep_checkpoints`` (each kept checkpoint keeps its replay)."""
         directory = self.run_dir / "checkpoints"
         grasps = self.progress.grasps
         replay_name = f"replay_{grasps:08d}.npz"
         self.replay.save(directory / replay_name)
+        fsync_file(directory / replay_name)
         state = {
             "agent": self.agent.state_dict(),
             "progress": dataclasses.asdict(self.progress),
@@ -362,14 +466,13 @@ class Trainer:
             "config": self.config.to_json(),
         }
         path = directory / f"checkpoint_{grasps:08d}.pt"
-        temporary = path.with_name(path.name + ".tmp")
-        torch.save(state, temporary)
-        temporary.replace(path)
-        for old in sorted(directory.glob("checkpoint_*.pt"))[: -self.config.keep_checkpoints]:
-            old.unlink()
-        for old in directory.glob("replay_*.npz"):
-            if old.name != replay_name:
-                old.unlink()
+        write_atomically(path, lambda temporary: torch.save(state, temporary))
+        try:
+            verify_replay(replay_file(path, read_checkpoint(path)))
+        except CheckpointError as error:
+            raise RuntimeError(f"the checkpoint just written does not read back ({error}); the older checkpoints "
+                               "are kept: free disk space, then resume") from error  # fmt: skip
+        prune(directory, self.config.keep_checkpoints)
         return path
 
 
@@ -401,8 +504,36 @@ class _Recorder:
 
 
 def latest_checkpoint(run_dir: Path) -> Path | None:
-    checkpoints = sorted((run_dir / "checkpoints").glob("checkpoint_*.pt"))
+    """The newest checkpoint file of a run, intact or not (:func:`apr.train.checkpoints.newest_intact` checks)."""
+    checkpoints = checkpoint_files(run_dir)
     return checkpoints[-1] if checkpoints else None
+
+
+def _set_aside_newer(checkpoint: Path) -> None:
+    """Rename the checkpoints newer than the one a run resumes from (they could not be used) to ``*.skipped``,
+    with their replay files: the run trains that stretch again, and they no longer count as kept."""
+    for newer in checkpoint_files(checkpoint.parent.parent):
+        if newer.name > checkpoint.name:
+            replay = newer.parent / f"replay_{newer.stem.removeprefix('checkpoint_')}.npz"
+            for path in (newer, replay):
+                if path.exists():
+                    path.replace(path.with_name(path.name + ".skipped"))
+            print(f"set {newer.name} aside as {newer.name}.skipped")
+
+
+def _forget_after(run_dir: Path, grasps: int) -> None:
+    """Drop the metrics rows and evaluations written after the checkpoint (at ``grasps``) a run resumes from."""
+    _truncate_metrics(run_dir / "metrics.csv", grasps)
+    for evaluation in (run_dir / "eval").glob("eval_*.json"):
+        if int(evaluation.stem.removeprefix("eval_")) > grasps:
+            evaluation.unlink()
+
+
+def _clear_logs(run_dir: Path) -> None:
+    """Forget what a run logged before its first checkpoint (it starts again from the beginning)."""
+    (run_dir / "metrics.csv").unlink(missing_ok=True)
+    for stale in (run_dir / "eval").glob("eval_*.json"):
+        stale.unlink()
 
 
 def _truncate_metrics(path: Path, grasps: int) -> None:

@@ -18,6 +18,11 @@ import gymnasium as gym
 
 MAX_FAILURES_IN_A_ROW = 5
 """A worker that fails this many times without one good answer between stops the run: it is not bad luck."""
+RECYCLE_EVERY_RESETS = 1_000
+"""A worker is replaced by a fresh process after this many episodes. pybullet's EGL renderer keeps the memory of
+removed bodies (bullet3 #1867): a worker's RSS grows by about 0.35 MiB per episode once its object pool is full
+(docs/benchmarks.md). A fresh environment plays a seed exactly as a used one does, so recycling changes no
+result; it costs one process start (a few seconds) per this many episodes."""
 
 
 @dataclass
@@ -44,6 +49,8 @@ class _Worker:
     pending: str | None = None
     """The command whose answer has not been received yet."""
     failures_in_a_row: int = field(default=0)
+    resets: int = 0
+    """Episodes this process has started."""
 
 
 def _serve(connection: Connection, env_id: str, env_kwargs: dict[str, Any]) -> None:
@@ -81,10 +88,14 @@ class EnvWorkers:
     returns a :class:`WorkerFailure` instead of a result.
     """
 
-    def __init__(self, num_workers: int, env_id: str, env_kwargs: dict[str, Any]):
+    def __init__(self, num_workers: int, env_id: str, env_kwargs: dict[str, Any],
+                 recycle_every: int = RECYCLE_EVERY_RESETS):  # fmt: skip
         if num_workers < 1:
             raise ValueError(f"num_workers must be at least 1, got {num_workers}")
         self.env_id, self.env_kwargs = env_id, dict(env_kwargs)
+        self.recycle_every = recycle_every
+        """Episodes after which a worker is replaced by a fresh process (0: never)."""
+        self.recycled = 0
         self._context = multiprocessing.get_context("spawn")
         self._workers = [self._start() for _ in range(num_workers)]
         self.failures = 0
@@ -103,6 +114,9 @@ class EnvWorkers:
         return self._workers[index].process.pid
 
     def send_reset(self, index: int, seed: int) -> None:
+        if self.recycle_every > 0 and self._workers[index].resets >= self.recycle_every:
+            self._recycle(index)
+        self._workers[index].resets += 1
         self._send(index, ("reset", seed))
 
     def send_step(self, index: int, action: Any) -> None:
@@ -138,6 +152,18 @@ class EnvWorkers:
         self._workers[index] = self._start()
         self._workers[index].failures_in_a_row = old.failures_in_a_row + 1
         self.failures += 1
+
+    def _recycle(self, index: int) -> None:
+        """Replace a healthy worker, between episodes, by a fresh process (``RECYCLE_EVERY_RESETS``)."""
+        old = self._workers[index]
+        with contextlib.suppress(BrokenPipeError, OSError):
+            old.connection.send(("close", None))
+        old.process.join(timeout=10)
+        if old.process.is_alive():
+            old.process.kill()
+        old.connection.close()
+        self._workers[index] = self._start()
+        self.recycled += 1
 
     def close(self) -> None:
         for worker in self._workers:
