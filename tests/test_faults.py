@@ -276,6 +276,18 @@ def test_resuming_a_finished_run_says_so_and_how_to_extend_it(run_dir: Path, cap
     assert {path: path.read_bytes() for path in run_dir.rglob("*") if path.is_file()} == before
 
 
+def test_a_run_out_of_training_time_is_finished_too(run_dir: Path, capsys):
+    run = Trainer.resume(run_dir)
+    run.progress.wall_s = 90.0  # 1.5 minutes of training
+    run._checkpoint()
+    run.close()
+    with pytest.raises(RunFinished, match=r"1\.5 of 1 minutes of training"):
+        Trainer.resume(run_dir, dataclasses.replace(Trainer.saved_config(run_dir), max_train_minutes=1.0))
+    main(["train", "--resume", str(run_dir), "--max-train-minutes", "1"])
+    assert "--max-train-minutes M (M > 1.5)" in capsys.readouterr().out
+    Trainer.resume(run_dir, dataclasses.replace(Trainer.saved_config(run_dir), max_train_minutes=2.0)).close()
+
+
 def test_a_run_that_died_before_its_first_checkpoint_starts_again(tmp_path: Path, capsys):
     fresh = Trainer(tiny_config(tmp_path, "early-crash"))
     fresh.close()

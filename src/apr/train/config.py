@@ -225,6 +225,7 @@ def _field_problems(config: TrainConfig) -> list[tuple[str, str]]:
     for item in dataclasses.fields(config):
         if item.name not in ("env", "model"):
             number(item.name, getattr(config, item.name), 1 if item.name in AT_LEAST_ONE else 0)
+    number("env.reach_scale", config.env.reach_scale, 0.0)
     model = config.model
     for item in dataclasses.fields(model):
         value, kind = getattr(model, item.name), str(item.type)

@@ -87,6 +87,10 @@ class Progress:
         """Seconds of training: the run's wall clock less its evaluations."""
         return self.wall_s - self.eval_s
 
+    def out_of_time(self, max_train_minutes: float) -> bool:
+        """The training-time budget is spent (never, for a budget of 0)."""
+        return max_train_minutes > 0 and self.train_s >= 60 * max_train_minutes
+
 
 class RunFinished(Exception):
     """A resumed run has already spent its grasp budget; the message says how to extend it."""
@@ -226,6 +230,15 @@ class Trainer:
                         f"evaluation (eval/). To train it further, give a larger budget: apr train --resume {run_dir} "
                         f"{flag('total_grasps')} N (N > {grasps:,})"
                     )
+                saved_progress = Progress(**state["progress"])
+                if saved_progress.out_of_time(config.max_train_minutes):
+                    minutes = saved_progress.train_s / 60
+                    raise RunFinished(
+                        f"{run_dir} is finished: {minutes:.1f} of {config.max_train_minutes:g} minutes of training "
+                        f"({grasps:,} grasps), with its final evaluation (eval/). To train it further, give more "
+                        f"time: apr train --resume {run_dir} {flag('max_train_minutes')} M (M > {minutes:.1f}), "
+                        f"or 0 for no time limit"
+                    )
                 trainer._load(checkpoint, state)
                 _set_aside_newer(checkpoint)
                 prune(run_dir / "checkpoints", keep=len(checkpoint_files(run_dir)))  # temporary and orphan files
@@ -296,8 +309,7 @@ class Trainer:
     def _finished(self) -> bool:
         """The grasp budget is spent, or the training-time budget (``max_train_minutes``)."""
         config, progress = self.config, self.progress
-        out_of_time = config.max_train_minutes > 0 and progress.train_s >= 60 * config.max_train_minutes
-        return progress.grasps >= config.total_grasps or out_of_time
+        return progress.grasps >= config.total_grasps or progress.out_of_time(config.max_train_minutes)
 
     def _request_stop(self, signum: int, frame: Any) -> None:
         print("\nCtrl-C: finishing this round, then saving a checkpoint (Ctrl-C again to quit at once)")
