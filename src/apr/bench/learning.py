@@ -40,6 +40,10 @@ class LearningBenchArgs:
     """Seeds, one run each (run one after the other: a timing taken beside another job is not a benchmark)."""
     out: Path = Path("results/cpu-4d")
     """Results folder; the runs go to ``OUT/runs``."""
+    grasps: int = 0
+    """Grasp budget of each run; 0 = the preset's."""
+    minutes: float | None = None
+    """Training-time budget of each run in minutes (0: none); default: the preset's."""
     baseline_episodes: int = 0
     """Held-out episodes per baseline; 0 = the preset's final evaluation size."""
     workers: int = 0
@@ -54,12 +58,17 @@ def run(args: LearningBenchArgs) -> None:
     from apr.train.config import preset
 
     config = preset(args.preset)  # validates the name before any work
-    if args.workers < 0 or args.baseline_episodes < 0:
-        raise SystemExit("--workers and --baseline-episodes must be >= 0")
+    for name in ("workers", "baseline_episodes", "grasps", "minutes"):
+        if (getattr(args, name) or 0) < 0:
+            raise SystemExit(f"--{name.replace('_', '-')} must be at least 0, got {getattr(args, name)}")
     if not args.seeds:
         raise SystemExit("--seeds: give at least one seed")
     if args.workers:
         config = dataclasses.replace(config, workers=args.workers)
+    if args.grasps:
+        config = dataclasses.replace(config, total_grasps=args.grasps)
+    if args.minutes is not None:
+        config = dataclasses.replace(config, max_train_minutes=args.minutes)
     if args.renderer:
         config = dataclasses.replace(config, env=dataclasses.replace(config.env, renderer=args.renderer))
     args.out.mkdir(parents=True, exist_ok=True)
@@ -81,18 +90,14 @@ def run(args: LearningBenchArgs) -> None:
 
 # ---------------------------------------------------------------------------------------------------- training
 def _train(config, run_dir: Path) -> None:
-    from apr.train.trainer import Trainer, latest_checkpoint
+    """Train ``config`` into ``run_dir``: reuse it when finished, resume it when interrupted."""
+    from apr.train.trainer import Trainer
 
     if _final_eval(run_dir) is not None:
         print(f"{run_dir}: finished, reused")
-        return
-    if run_dir.exists() and latest_checkpoint(run_dir) is not None:
-        Trainer.resume(run_dir).train()
+    elif (run_dir / "config.json").exists():
+        Trainer.resume(run_dir).train()  # from its newest intact checkpoint, or from the start if it has none
     else:
-        if run_dir.exists():  # a start that never reached its first checkpoint: nothing to keep
-            import shutil
-
-            shutil.rmtree(run_dir)
         Trainer(config).train()
 
 
