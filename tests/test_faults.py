@@ -2,7 +2,7 @@
 resumes, bad flags, vectorised environments, and pybullet's console chatter.
 
 Run folders here are made without simulating: a trainer's replay gets a few blank frames and checkpoints are
-written directly, so each test costs well under a second once the module's run exists.
+written directly, so the run tests cost well under a second each once the module's run exists.
 """
 
 from __future__ import annotations

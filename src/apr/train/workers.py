@@ -19,10 +19,10 @@ import gymnasium as gym
 MAX_FAILURES_IN_A_ROW = 5
 """A worker that fails this many times without one good answer between stops the run: it is not bad luck."""
 RECYCLE_EVERY_RESETS = 1_000
-"""A worker is replaced by a fresh process after this many episodes. pybullet's EGL renderer keeps the memory of
-removed bodies (bullet3 #1867): a worker's RSS grows by about 0.35 MiB per episode once its object pool is full
-(docs/benchmarks.md). A fresh environment plays a seed exactly as a used one does, so recycling changes no
-result; it costs one process start (a few seconds) per this many episodes."""
+"""A worker is replaced by a fresh process after this many episodes. pybullet keeps memory of the bodies it
+removes (and EGL their GPU memory, bullet3 #1867): a worker's RSS grows by about 0.3 MiB per episode, with either
+renderer, for as long as it lives (docs/benchmarks.md). A fresh environment plays a seed exactly as a used one
+does, so recycling changes no result; it costs one process start (a few seconds) per this many episodes."""
 
 
 @dataclass
