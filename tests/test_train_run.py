@@ -19,7 +19,7 @@ from apr.train.trainer import METRICS_COLUMNS, Trainer, latest_checkpoint
 from apr.train.workers import EnvWorkers
 
 # Columns that depend on the wall clock, not on the computation.
-TIMING_COLUMNS = {"wall_s", "grasps_per_min"}
+TIMING_COLUMNS = {"wall_s", "grasps_per_min", "train_s", "learner_s", "act_s", "eval_s"}
 
 
 def read_metrics(run_dir: Path) -> list[dict[str, str]]:
@@ -114,11 +114,11 @@ def test_a_killed_worker_is_replaced_and_the_run_finishes(tmp_path: Path):
 
 
 def test_signs_of_life_the_trained_policy_attempts_grasps_the_untrained_one_never_does(tmp_path: Path):
-    """The CPU preset (4-DoF, the environment's target, tiny networks, heads that see g and f) for 24 grasps: 8
-    random, then about 2 joint updates per grasp step. Afterwards the deterministic grasp policy, on 8 fixed
-    training episodes, starts a grasp (brings the tool tip down to the grasp height) in most of them; the same
-    agent untrained starts none: its mean action barely moves the gripper, which starts 0.4 m above the grasp
-    height.
+    """The CPU preset (4-DoF, the environment's target, tiny networks, heads that see g and f, its default
+    renderer) for 24 grasps: 8 random, then about 2 joint updates per grasp step. Afterwards the deterministic
+    grasp policy, on 8 fixed training episodes, starts a grasp (brings the tool tip down to the grasp height) in
+    at least half of them (7/8 and 6/8 measured); the same agent untrained starts none: its mean action barely
+    moves the gripper, which starts 0.4 m above the grasp height.
 
     What it shows: experience flows from the workers through replay into the joint GQN + SAC update, and within a
     few hundred updates the policy goes for the target and attempts the grasp (the precondition of any success:
@@ -126,7 +126,7 @@ def test_signs_of_life_the_trained_policy_attempts_grasps_the_untrained_one_neve
     """
     base = preset("cpu-4d")
     config = dataclasses.replace(
-        base, env=dataclasses.replace(base.env, renderer="tiny"), total_grasps=24, max_train_minutes=0.0,
+        base, total_grasps=24, max_train_minutes=0.0,
         random_grasps=8, updates_per_step=2.0, eval_every_grasps=0, eval_episodes=1, checkpoint_every_grasps=0,
         log_every_grasps=8, image_every_grasps=0, replay_capacity=2_000, runs_dir=tmp_path, run_name="signs-of-life",
     )  # fmt: skip
@@ -145,4 +145,4 @@ def test_signs_of_life_the_trained_policy_attempts_grasps_the_untrained_one_neve
             attempts[name] = sum(result.attempted for results in rounds for result in results)
     print(f"grasp attempts in {len(seeds)} episodes: {attempts}")
     assert attempts["untrained"] == 0
-    assert attempts["trained"] >= 5
+    assert attempts["trained"] >= 4

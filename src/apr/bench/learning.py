@@ -133,12 +133,16 @@ def _baselines(config, episodes: int, path: Path) -> dict[str, dict]:
         return scripted_grasp_actions(observations["fixation"], observations["gripper"][:, :3], dof)
 
     workers = config.eval_workers
-    results = {"untrained": evaluate(new_agent(config), env, episodes, "test", workers).to_dict(),
-               "random": evaluate_policy(random_policy, env, episodes, "test", workers).to_dict()}  # fmt: skip
+    policies = {"untrained": lambda: evaluate(new_agent(config), env, episodes, "test", workers),
+                "random": lambda: evaluate_policy(random_policy, env, episodes, "test", workers)}  # fmt: skip
     if not env.learned_fixation:
-        results["scripted"] = evaluate_policy(scripted_policy, env, episodes, "test", workers).to_dict()
-    for result in results.values():
-        result.pop("outcomes")
+        policies["scripted"] = lambda: evaluate_policy(scripted_policy, env, episodes, "test", workers)
+    results = {}
+    for name, run_baseline in policies.items():
+        print(f"baseline {name}: {episodes} held-out episodes ...", flush=True)
+        results[name] = run_baseline().to_dict()
+        results[name].pop("outcomes")
+        print(f"baseline {name}: {results[name]['success_rate']:.1%} ({results[name]['successes']}/{episodes})")
     path.write_text(json.dumps({"key": key, "results": results}, indent=2))
     return results
 
@@ -220,7 +224,7 @@ def _summary(args: LearningBenchArgs, curve: list[dict], baselines: dict[str, di
 
     lines = [f"# apr bench learning: {args.preset}", "",
              f"Machine: {machine_description()}. Command: `apr bench learning --preset {args.preset} --seeds "
-             f"{' '.join(map(str, args.seeds))} --out {args.out}`", "",
+             f"{' '.join(map(str, args.seeds))} --out {args.out}{' --report-only' if args.report_only else ''}`", "",
              "## Held-out success at the end of each run", "",
              "| run | grasps | training minutes | success | 95% CI | episodes |", "|" + " --- |" * 6]  # fmt: skip
     finals = [row for row in curve if row["final"]]

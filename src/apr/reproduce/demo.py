@@ -2,9 +2,9 @@
 
 The policy is, in this order: ``--checkpoint PATH`` (a run folder, a training checkpoint or a packaged
 checkpoint), else the first packaged checkpoint in ``src/apr/reproduce/checkpoints/``, else an UNTRAINED agent
-of the smoke preset. No trained checkpoint is packaged yet, so out of the box the demo runs the untrained
-agent and says so, on the console and in the report; once a packaged checkpoint is dropped into that folder
-(``apr reproduce package RUN_DIR``), the same command runs it.
+of the smoke preset. apr ships one packaged checkpoint (the ``cpu-4d`` preset after 60 minutes on a 2-core
+CPU), so out of the box the demo runs it and says how it was trained and what it measured; without one it runs
+the untrained agent and says so, on the console and in the report.
 
 The report (``OUT/report.md``) gives the success rate over the episodes with its 95% interval, each episode's
 outcome, the GIF and the figures of :mod:`apr.reproduce.figures`.

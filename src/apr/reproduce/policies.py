@@ -213,7 +213,7 @@ def package_checkpoint(
         "command": command
         or f"apr train --preset {config.preset} --seed {config.seed} "
         f"--total-grasps {config.total_grasps} (other fields: see config)",
-        "source": str(snapshot.source),
+        "source": _relative(snapshot.source),
         "train_minutes": round(evaluation["train_s"] / 60, 1) if evaluation and "train_s" in evaluation else None,
         "machine": machine or machine_description(),
         "created": time.strftime("%Y-%m-%d %H:%M:%S"),
@@ -228,6 +228,14 @@ def package_checkpoint(
     manifest_path = out_dir / f"{name}.json"
     manifest_path.write_text(json.dumps(manifest, indent=2))
     return manifest_path
+
+
+def _relative(path: str) -> str:
+    """``path`` relative to the working directory when it lies under it (no machine's absolute paths shipped)."""
+    try:
+        return str(Path(path).resolve().relative_to(Path.cwd()))
+    except ValueError:
+        return str(path)
 
 
 @dataclass
