@@ -102,11 +102,10 @@ def _train(config, run_dir: Path) -> None:
 
 
 def _final_eval(run_dir: Path) -> dict | None:
-    for path in sorted((run_dir / "eval").glob("eval_*.json"), reverse=True):
-        result = json.loads(path.read_text())
-        if result.get("final"):
-            return result
-    return None
+    """The evaluation the run wrote when it ended (grasp or time budget spent), or None."""
+    from apr.reproduce.runs import eval_results
+
+    return next((result for result in reversed(eval_results(run_dir)) if result.get("final")), None)
 
 
 # --------------------------------------------------------------------------------------------------- baselines
@@ -149,10 +148,11 @@ def _baselines(config, episodes: int, path: Path) -> dict[str, dict]:
 
 # ------------------------------------------------------------------------------------------------------ curves
 def _curve_rows(run_dir: Path) -> list[dict]:
-    config = json.loads((run_dir / "config.json").read_text())
+    from apr.reproduce.runs import eval_results, read_config
+
+    config = read_config(run_dir)
     rows = []
-    for path in sorted((run_dir / "eval").glob("eval_*.json")):
-        result = json.loads(path.read_text())
+    for result in eval_results(run_dir):
         rows.append({
             "run": run_dir.name, "seed": config["seed"], "grasps": result["grasps"],
             "updates": result.get("updates", ""),
