@@ -14,7 +14,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from apr.train.workers import EnvWorkers, StepResult, WorkerFailure
+from apr.train.workers import StepResult, WorkerFailure, Workers
 
 Policy = Callable[[dict[str, np.ndarray], str], np.ndarray]
 """(batched observations, "grasp" or "fixation") -> actions (N, A) in [-1, 1]."""
@@ -61,7 +61,7 @@ def stack(observations: list[dict[str, Any]]) -> dict[str, np.ndarray]:
 
 
 def run_round(
-    workers: EnvWorkers,
+    workers: Workers,
     seeds: list[int],
     policy: Policy,
     dof: int,

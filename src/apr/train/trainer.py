@@ -47,7 +47,7 @@ from apr.train.config import ConfigError, TrainConfig, flag, resume_conflicts
 from apr.train.evaluation import evaluate
 from apr.train.replay import ReplayBuffer, ReplaySpec
 from apr.train.rollout import EpisodeResult, episode_seed, run_round
-from apr.train.workers import EnvWorkers, StepResult
+from apr.train.workers import StepResult, open_workers
 
 METRICS_COLUMNS = (
     "grasps", "env_steps", "updates", "wall_s", "train_success", "eval_success", "eval_ci_low", "eval_ci_high",
@@ -274,7 +274,10 @@ class Trainer:
         from torch.utils.tensorboard import SummaryWriter
 
         self.writer = SummaryWriter(str(self.run_dir / "tb"))
-        workers = self.workers = EnvWorkers(config.workers, env.env_id, env.make_kwargs("train"))
+        workers = self.workers = open_workers(config.workers, env.env_id, env.make_kwargs("train"), config.backend,
+                                              config.ray_address)  # fmt: skip
+        if config.backend == "ray" and self.agent.device.type == "cpu":  # only the actors here take our cores
+            torch.set_num_threads(max(1, (os.cpu_count() or 1) - workers.on_this_machine()))
         previous_handler = signal.signal(signal.SIGINT, self._request_stop)
         started = time.perf_counter() - progress.wall_s
         bar = tqdm(total=config.total_grasps, initial=progress.grasps, unit="grasp", dynamic_ncols=True)
@@ -401,8 +404,8 @@ class Trainer:
         """Evaluate on held-out objects; write ``eval/eval_GRASPS.json`` (``final``: the run's last one)."""
         config = self.config
         started = time.perf_counter()
-        result = evaluate(self.agent, config.env, episodes or config.eval_episodes, "test",
-                          config.eval_workers).to_dict()  # fmt: skip
+        result = evaluate(self.agent, config.env, episodes or config.eval_episodes, "test", config.eval_workers,
+                          config.backend, config.ray_address).to_dict()  # fmt: skip
         elapsed = time.perf_counter() - started
         self.progress.eval_s += elapsed
         self.progress.wall_s += elapsed  # the round loop recomputes it from the start time; the same sum

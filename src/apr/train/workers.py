@@ -12,7 +12,7 @@ import multiprocessing
 import signal
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
-from typing import Any
+from typing import Any, Literal, Protocol
 
 import gymnasium as gym
 
@@ -80,6 +80,48 @@ def _serve(connection: Connection, env_id: str, env_kwargs: dict[str, Any]) -> N
         connection.close()
 
 
+Backend = Literal["local", "ray"]
+"""Where environment workers run: processes of this machine, or Ray actors anywhere on a Ray cluster."""
+
+
+class Workers(Protocol):
+    """What a round of episodes needs of a pool of environments (:func:`apr.train.rollout.run_round`)."""
+
+    def __len__(self) -> int: ...
+
+    def send_reset(self, index: int, seed: int) -> None: ...
+
+    def send_step(self, index: int, action: Any) -> None: ...
+
+    def receive(self, index: int) -> tuple[dict, dict] | StepResult | WorkerFailure: ...
+
+    def pid(self, index: int) -> int | None: ...
+
+    def on_this_machine(self) -> int:
+        """Workers that share this machine's cores with the learner."""
+        ...
+
+    def close(self) -> None: ...
+
+    def __enter__(self) -> Workers: ...
+
+    def __exit__(self, *exc: object) -> None: ...
+
+
+def open_workers(num_workers: int, env_id: str, env_kwargs: dict[str, Any], backend: Backend = "local",
+                 ray_address: str = "", reserve_cpus: bool = True) -> Workers:  # fmt: skip
+    """A pool of ``num_workers`` environments: :class:`EnvWorkers` (local processes) or, with ``backend="ray"``,
+    :class:`apr.cluster.ray_workers.RayEnvWorkers` (Ray actors; ``reserve_cpus=False`` for evaluation actors,
+    which run while the training actors wait)."""
+    if backend == "ray":
+        from apr.cluster.ray_workers import RayEnvWorkers
+
+        return RayEnvWorkers(num_workers, env_id, env_kwargs, ray_address, cpus_per_worker=1.0 if reserve_cpus else 0)
+    if backend != "local":
+        raise ValueError(f"unknown backend {backend!r}; choose local or ray")
+    return EnvWorkers(num_workers, env_id, env_kwargs)
+
+
 class EnvWorkers:
     """``num_workers`` environments, each in its own process.
 
@@ -112,6 +154,9 @@ class EnvWorkers:
 
     def pid(self, index: int) -> int | None:
         return self._workers[index].process.pid
+
+    def on_this_machine(self) -> int:
+        return len(self._workers)
 
     def send_reset(self, index: int, seed: int) -> None:
         if self.recycle_every > 0 and self._workers[index].resets >= self.recycle_every:
