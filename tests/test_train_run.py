@@ -15,11 +15,8 @@ from apr.cli import main
 from apr.model.agent import APRAgent
 from apr.train.config import TrainConfig, preset
 from apr.train.rollout import run_round
-from apr.train.trainer import METRICS_COLUMNS, Trainer, latest_checkpoint
+from apr.train.trainer import METRICS_COLUMNS, TIMING_COLUMNS, Trainer, latest_checkpoint
 from apr.train.workers import EnvWorkers
-
-# Columns that depend on the wall clock, not on the computation.
-TIMING_COLUMNS = {"wall_s", "grasps_per_min", "train_s", "learner_s", "act_s", "eval_s"}
 
 
 def read_metrics(run_dir: Path) -> list[dict[str, str]]:

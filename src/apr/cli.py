@@ -8,6 +8,7 @@
     apr bench env                                 environment speed against the raw ceiling
     apr bench learner                             milliseconds per joint GQN + SAC update
     apr bench learning --preset cpu-4d            held-out success against grasps and minutes, beside baselines
+    apr bench backends --preset cpu-4d            the same run with local workers and with Ray actors: speed, numbers
     apr reproduce table1 --seeds S --grasps N     train the presets of Table 1 (resumable), write table1.md
     apr reproduce package RUN_DIR                 package a run's checkpoint for apr demo
     apr plot RUN_DIR... --out FILE                held-out success against grasps, one line per preset
@@ -26,9 +27,11 @@ from typing import Annotated
 import tyro
 
 from apr import __version__
+from apr.bench import backends as backends_bench
 from apr.bench import env as env_bench
 from apr.bench import learner as learner_bench
 from apr.bench import learning as learning_bench
+from apr.bench.backends import BackendsBenchArgs
 from apr.bench.env import EnvBenchArgs
 from apr.bench.learner import LearnerBenchArgs
 from apr.bench.learning import LearningBenchArgs
@@ -58,7 +61,8 @@ class BenchArgs:
     benchmark: Annotated[
         Annotated[EnvBenchArgs, tyro.conf.subcommand("env")]
         | Annotated[LearnerBenchArgs, tyro.conf.subcommand("learner")]
-        | Annotated[LearningBenchArgs, tyro.conf.subcommand("learning")],
+        | Annotated[LearningBenchArgs, tyro.conf.subcommand("learning")]
+        | Annotated[BackendsBenchArgs, tyro.conf.subcommand("backends")],
         tyro.conf.arg(name=""),
     ]
 
@@ -98,6 +102,7 @@ HANDLERS = {
     EnvBenchArgs: env_bench.run,
     LearnerBenchArgs: learner_bench.run,
     LearningBenchArgs: learning_bench.run,
+    BackendsBenchArgs: backends_bench.run,
 }
 """What each parsed command runs (a group's chosen subcommand runs its own handler)."""
 

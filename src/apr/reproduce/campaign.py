@@ -4,7 +4,9 @@ Runs are named ``PRESET__sSEED`` under the output folder, so the command is resu
 with an evaluation at or beyond the grasp budget) is skipped, an unfinished one continues from its latest
 checkpoint (``Trainer.resume``), and a folder without a checkpoint starts over. ``--parallel K`` trains K runs
 at once, each in its own process (each run also has its environment worker processes); their output goes to
-``RUN/train.log``.
+``RUN/train.log``. ``--backend ray`` trains each run as a task of a Ray cluster, with its environment workers
+as Ray actors (:mod:`apr.cluster.ray_campaign`); ``--backend slurm`` as a task of a Slurm job array, through
+submitit (:mod:`apr.cluster.slurm_campaign`). Either way the table is built from the run folders, as here.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import multiprocessing
 import os
+import shutil
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -42,9 +45,24 @@ class Table1Args:
     out: Path = Path("runs/table1")
     """Parent folder of the runs (PRESET__sSEED) and of table1.md."""
     parallel: int = 1
-    """Runs trained at once, each in its own process (1: in this process, with a progress bar)."""
+    """Runs trained at once on this machine, each in its own process (1: in this process, with a progress bar)."""
     workers: int = 0
-    """Environment processes per run; 0 = the CPU cores shared among the parallel runs."""
+    """Environment processes per run; 0 = the CPU cores shared among the parallel runs (required with ray and
+    slurm: the CPUs each run reserves besides its learner's)."""
+    backend: Literal["local", "ray", "slurm"] = "local"
+    """Where the runs train: on this machine; as Ray tasks of a cluster, one GPU and WORKERS actors each; or as a
+    Slurm job array through submitit, one node's GPU and WORKERS+1 CPUs per run (pip install -e ".[cluster]")."""
+    ray_address: str = ""
+    """The Ray cluster (--backend ray): auto, HOST:6379 or ray://HOST:10001; empty = RAY_ADDRESS, one started
+    on this machine, or a new one here."""
+    gpus_per_run: float = 1.0
+    """GPUs each run reserves for its learner (ray, slurm; a whole number with slurm)."""
+    max_jobs: int = 0
+    """Runs training at once on the cluster (ray, slurm); 0 = as many as it has room for."""
+    slurm_partition: str = ""
+    """The Slurm partition; empty = the cluster's default."""
+    slurm_timeout_min: int = 24 * 60
+    """Time limit of each Slurm task, minutes; a task cut off is requeued and resumes from its checkpoint."""
     eval_episodes: int | None = None
     """Episodes per evaluation; default: the preset's (100, the paper's protocol)."""
     random_grasps: int | None = None
@@ -146,6 +164,14 @@ def _train_logged(plan: PlannedRun, torch_threads: int) -> None:
     train_planned(plan, torch_threads)
 
 
+def train_replanned_logged(plan: PlannedRun) -> None:
+    """The body of a cluster job: plan the run again from its folder (a retried or requeued job resumes what an
+    earlier attempt checkpointed; a finished one is left alone), then train it into RUN/train.log."""
+    plan = dataclasses.replace(plan, status=run_status(plan.run_dir, plan.config.total_grasps))
+    if plan.status != "done":
+        _train_logged(plan, torch_threads=0)
+
+
 def run_campaign(plans: Sequence[PlannedRun], parallel: int = 1) -> list[tuple[PlannedRun, int]]:
     """Train the runs that are not done, ``parallel`` at a time; return (run, exit code) for each one trained."""
     todo = [plan for plan in plans if plan.status != "done"]
@@ -197,6 +223,41 @@ def overrides_from_args(args: Table1Args) -> dict[str, Any]:
     return overrides
 
 
+def cluster_problems(args: Table1Args) -> list[str | None]:
+    """Why the cluster options of ``args`` cannot work (before anything is submitted)."""
+    if args.backend == "local" or args.table_only:
+        return []
+    from apr.cluster import missing
+
+    module = "ray" if args.backend == "ray" else "submitit"
+    return [
+        missing(module, f"--backend {args.backend}"),
+        None if args.workers > 0 else f"--backend {args.backend} needs --workers N: the environment workers "
+        "each run reserves CPUs for",
+        checks.at_least("--max-jobs", args.max_jobs, 0),
+        None if args.gpus_per_run >= 0 else f"--gpus-per-run must be at least 0, got {args.gpus_per_run}",
+        None if args.backend != "slurm" or float(args.gpus_per_run).is_integer()
+        else f"--gpus-per-run {args.gpus_per_run}: Slurm reserves whole GPUs",
+        checks.at_least("--slurm-timeout-min", args.slurm_timeout_min, 1),
+        None if args.backend != "slurm" or shutil.which("sbatch") else "--backend slurm: no Slurm here (sbatch is "
+        "not on PATH); run the command on the cluster's login node",
+    ]  # fmt: skip
+
+
+def train_campaign(plans: Sequence[PlannedRun], args: Table1Args) -> list[tuple[PlannedRun, int]]:
+    """Train the runs that are not done where ``args.backend`` says; return (run, exit code) for each."""
+    if args.backend == "ray":
+        from apr.cluster.ray_campaign import run_campaign_ray
+
+        return run_campaign_ray(plans, args.ray_address, args.gpus_per_run, args.max_jobs)
+    if args.backend == "slurm":
+        from apr.cluster.slurm_campaign import run_campaign_slurm
+
+        return run_campaign_slurm(plans, args.out / "slurm", args.slurm_partition, args.slurm_timeout_min,
+                                  int(args.gpus_per_run), args.max_jobs, cluster="slurm")  # fmt: skip
+    return run_campaign(plans, args.parallel)
+
+
 def command_line(args: Table1Args) -> str:
     """The ``apr reproduce table1`` command line that gives ``args``."""
     parts = ["apr reproduce table1", f"--seeds {args.seeds}"]
@@ -206,7 +267,8 @@ def command_line(args: Table1Args) -> str:
         parts.append("--presets " + " ".join(args.presets))
     parts.append(f"--out {args.out}")
     defaults = Table1Args()
-    for name in ("parallel", "workers", "eval_episodes", "random_grasps", "replay_capacity"):
+    for name in ("parallel", "workers", "eval_episodes", "random_grasps", "replay_capacity", "backend",
+                 "ray_address", "gpus_per_run", "max_jobs", "slurm_partition", "slurm_timeout_min"):  # fmt: skip
         if getattr(args, name) != getattr(defaults, name):
             parts.append(f"--{name.replace('_', '-')} {getattr(args, name)}")
     if args.tiny_model:
@@ -226,7 +288,7 @@ def run(args: Table1Args, overrides: dict[str, Any] | None = None) -> Path:
         *(checks.at_least(f"--{name.replace('_', '-')}", getattr(args, name), 1)
           for name in ("grasps", "eval_episodes", "replay_capacity") if getattr(args, name) is not None),
         checks.at_least("--random-grasps", args.random_grasps, 0) if args.random_grasps is not None else None,
-        checks.output_folder("--out", args.out),
+        checks.output_folder("--out", args.out), *cluster_problems(args),
     ])  # fmt: skip
     seeds = list(range(args.seeds))
     plans = plan_runs(
@@ -234,7 +296,7 @@ def run(args: Table1Args, overrides: dict[str, Any] | None = None) -> Path:
     )
     failed = []
     if not args.table_only:
-        failed = [plan for plan, code in run_campaign(plans, args.parallel) if code != 0]
+        failed = [plan for plan, code in train_campaign(plans, args) if code != 0]
     present = [plan.run_dir for plan in plans if (plan.run_dir / "config.json").exists()]
     source = (
         f"Built from the final evaluations of the runs under `{args.out}` ({len(present)} of {len(plans)} "

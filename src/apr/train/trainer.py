@@ -53,6 +53,8 @@ METRICS_COLUMNS = (
     "grasps", "env_steps", "updates", "wall_s", "train_success", "eval_success", "eval_ci_low", "eval_ci_high",
     "attempt_rate", "reach_return", "lost_episodes", "grasps_per_min", "train_s", "learner_s", "act_s", "eval_s",
 )  # fmt: skip
+TIMING_COLUMNS = ("wall_s", "grasps_per_min", "train_s", "learner_s", "act_s", "eval_s")
+"""The metrics.csv columns that depend on the wall clock, not on the computation."""
 RECENT_EPISODES = 100
 """Training success is the share of the last this many episodes."""
 

@@ -1,0 +1,181 @@
+"""Beyond one machine: environment workers as Ray actors on a two-node cluster simulated on this machine, and
+the Table 1 campaign as Ray tasks and as a submitit job array (submitit's local executor stands in for Slurm).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from apr.reproduce import campaign
+from apr.reproduce.campaign import Table1Args, plan_runs
+from apr.train.config import TrainConfig, preset
+from apr.train.trainer import TIMING_COLUMNS, Trainer
+
+ray = pytest.importorskip("ray", reason='the cluster extra is not installed: pip install -e ".[cluster]"')
+submitit = pytest.importorskip("submitit", reason='the cluster extra is not installed: pip install -e ".[cluster]"')
+
+from ray.cluster_utils import Cluster  # noqa: E402
+
+from apr.cluster.slurm_campaign import CampaignJob, run_campaign_slurm  # noqa: E402
+
+TINY_CAMPAIGN_RUN = dict(total_grasps=2, random_grasps=1, eval_episodes=1, eval_every_grasps=0,
+                         checkpoint_every_grasps=1, image_every_grasps=0, log_every_grasps=1)  # fmt: skip
+"""The smoke preset shrunk to 2 grasps (1 random) and one evaluation episode at the end."""
+
+
+def read_rows(run_dir: Path) -> list[dict[str, str]]:
+    lines = (run_dir / "metrics.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    return [{k: v for k, v in zip(header, line.split(","), strict=True) if k not in TIMING_COLUMNS}
+            for line in lines[1:]]  # fmt: skip
+
+
+def small_run(tmp: Path, name: str, backend: str) -> TrainConfig:
+    """Two workers, four grasps (two rounds: random actions, then the policy acting and the learner updating)."""
+    base = preset("smoke")
+    return dataclasses.replace(
+        base, env=dataclasses.replace(base.env, renderer="tiny"), workers=2, total_grasps=4, random_grasps=2,
+        updates_per_step=0.5, eval_every_grasps=0, eval_episodes=1, checkpoint_every_grasps=2, log_every_grasps=1,
+        image_every_grasps=0, runs_dir=tmp, run_name=name, backend=backend,
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def two_nodes() -> Iterator[Cluster]:
+    """A Ray cluster of two nodes (two raylets on this machine), two CPUs each, this process its driver."""
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 2, "object_store_memory": 80 * 2**20})
+    cluster.add_node(num_cpus=2, object_store_memory=80 * 2**20)
+    cluster.wait_for_nodes()
+    ray.init(address=cluster.address, logging_level=logging.ERROR, log_to_driver=False)
+    yield cluster
+    ray.shutdown()
+    cluster.shutdown()
+
+
+@pytest.fixture(scope="module")
+def local_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return Trainer(small_run(tmp_path_factory.mktemp("runs"), "local", "local")).train()
+
+
+def test_a_ray_run_spreads_its_actors_over_both_nodes_and_gives_the_local_pools_numbers(two_nodes, local_run,
+                                                                                       tmp_path):  # fmt: skip
+    trainer = Trainer(small_run(tmp_path, "ray", "ray"))
+    learn, nodes = trainer._learn, []
+
+    def learn_and_look(steps: int) -> None:
+        nodes.append(tuple(trainer.workers.node_ids()))
+        learn(steps)
+
+    trainer._learn = learn_and_look
+    ray_run = trainer.train()
+    cluster_nodes = {node["NodeID"] for node in ray.nodes() if node["Alive"]}
+    assert len(cluster_nodes) == 2 and set(nodes[0]) == cluster_nodes, "the two actors share a node"
+    rows = read_rows(local_run)
+    assert int(rows[-1]["updates"]) > 0, "the learner never ran: the comparison would prove nothing"
+    assert read_rows(ray_run) == rows
+    ray_eval, local_eval = (json.loads((run / "eval" / "eval_00000004.json").read_text()) for run in (ray_run,
+                                                                                                     local_run))
+    assert ray_eval["outcomes"] == local_eval["outcomes"]
+    assert json.loads((ray_run / "config.json").read_text())["backend"] == "ray"
+
+
+def test_an_actor_killed_mid_round_is_restarted_and_the_run_finishes_counting_the_lost_episode(two_nodes,
+                                                                                              tmp_path):  # fmt: skip
+    trainer = Trainer(small_run(tmp_path, "killed", "ray"))
+    learn, killed = trainer._learn, []
+
+    def kill_once_while_stepping(steps: int) -> None:
+        if not killed and trainer.progress.grasps == 2:
+            pid = trainer.workers.pid(1)
+            os.kill(pid, signal.SIGKILL)  # a simulated node is a process of this machine
+            killed.append(pid)
+        learn(steps)
+
+    trainer._learn = kill_once_while_stepping
+    run = trainer.train()
+    rows = read_rows(run)
+    assert killed and int(rows[-1]["lost_episodes"]) == 1
+    assert int(rows[-1]["grasps"]) == 4  # the lost episode does not count; the run still did its 4
+    assert trainer.workers.failures == 1
+
+
+def test_the_campaign_trains_each_run_as_a_ray_task_and_builds_the_table_from_the_folders(two_nodes, tmp_path):
+    out = tmp_path / "table1"
+    args = Table1Args(seeds=1, presets=("smoke",), out=out, backend="ray", workers=1, gpus_per_run=0)
+    campaign.run(args, overrides=TINY_CAMPAIGN_RUN)
+    run = out / "smoke__s0"
+    final = json.loads((run / "eval" / "eval_00000002.json").read_text())
+    assert final["final"] and final["episodes"] == 1
+    assert json.loads((run / "config.json").read_text())["backend"] == "ray"
+    assert "smoke" in (out / "table1.md").read_text() and (run / "train.log").exists()
+    assert campaign.plan_runs(("smoke",), [0], out, TINY_CAMPAIGN_RUN)[0].status == "done"
+
+
+def test_the_campaign_as_a_submitit_job_array_trains_the_runs_that_are_not_done(tmp_path: Path):
+    """submitit's local executor runs the array's tasks as processes of this machine, as Slurm would on nodes."""
+    out = tmp_path / "table1"
+    plans = plan_runs(("smoke",), [0, 1], out, {**TINY_CAMPAIGN_RUN, "workers": 1})
+    finished = run_campaign_slurm(plans[:1], out / "slurm", gpus_per_run=0, cluster="local")
+    assert [(plan.run_dir.name, code) for plan, code in finished] == [("smoke__s0", 0)]
+    assert json.loads((out / "smoke__s0" / "eval" / "eval_00000002.json").read_text())["final"]
+    assert not (out / "smoke__s1").exists()
+
+    replanned = plan_runs(("smoke",), [0, 1], out, {**TINY_CAMPAIGN_RUN, "workers": 1})
+    assert [plan.status for plan in replanned] == ["done", "new"]
+    # A preempted task is requeued with its plan, which it plans again when it restarts: resume, not restart.
+    requeued = CampaignJob().checkpoint(replanned[1])
+    assert requeued.args == (replanned[1],) and isinstance(requeued.function, CampaignJob)
+
+
+def test_apr_imports_without_ray_or_submitit_and_the_backends_say_how_to_install_them(tmp_path: Path):
+    code = """
+import sys
+sys.modules["ray"] = None  # as if not installed
+sys.modules["submitit"] = None
+import apr.cli, apr.train.trainer, apr.reproduce.campaign
+from apr.train.config import preset
+import dataclasses
+config = dataclasses.replace(preset("smoke"), backend="ray", workers=2)
+print("\\n".join(config.problems()))
+apr.cli.main(["reproduce", "table1", "--backend", "slurm", "--workers", "1", "--out", sys.argv[1]])
+"""
+    done = subprocess.run([sys.executable, "-c", code, str(tmp_path / "out")], capture_output=True, text=True)
+    assert done.returncode != 0 and "Traceback" not in done.stderr
+    assert "--backend ray needs the 'ray' package" in done.stdout and 'pip install -e ".[cluster]"' in done.stdout
+    assert "--backend slurm needs the 'submitit' package" in done.stderr
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.slow
+def test_a_node_lost_mid_round_costs_its_episode_and_its_actor_restarts_on_the_other_node(tmp_path: Path):
+    ray.shutdown()  # the module's cluster, when the default tests ran first
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 2, "object_store_memory": 80 * 2**20})
+    doomed = cluster.add_node(num_cpus=1, object_store_memory=80 * 2**20)
+    cluster.wait_for_nodes()
+    ray.init(address=cluster.address, logging_level=logging.ERROR, log_to_driver=False)
+    try:
+        trainer = Trainer(small_run(tmp_path, "node-lost", "ray"))
+        learn, removed = trainer._learn, []
+
+        def remove_node_while_stepping(steps: int) -> None:
+            if not removed and trainer.progress.grasps == 2:
+                cluster.remove_node(doomed)
+                removed.append(doomed)
+            learn(steps)
+
+        trainer._learn = remove_node_while_stepping
+        rows = read_rows(trainer.train())
+        assert removed and int(rows[-1]["lost_episodes"]) == 1 and int(rows[-1]["grasps"]) == 4
+    finally:
+        ray.shutdown()
+        cluster.shutdown()
