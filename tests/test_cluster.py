@@ -14,12 +14,14 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from apr.reproduce import campaign
 from apr.reproduce.campaign import Table1Args, plan_runs
 from apr.train.config import TrainConfig, preset
 from apr.train.trainer import TIMING_COLUMNS, Trainer
+from apr.train.workers import WorkerFailure
 
 ray = pytest.importorskip("ray", reason='the cluster extra is not installed: pip install -e ".[cluster]"')
 submitit = pytest.importorskip("submitit", reason='the cluster extra is not installed: pip install -e ".[cluster]"')
@@ -107,6 +109,29 @@ def test_an_actor_killed_mid_round_is_restarted_and_the_run_finishes_counting_th
     assert killed and int(rows[-1]["lost_episodes"]) == 1
     assert int(rows[-1]["grasps"]) == 4  # the lost episode does not count; the run still did its 4
     assert trainer.workers.failures == 1
+
+
+def test_an_actor_is_recycled_after_its_episodes_and_an_environment_error_costs_one_episode(two_nodes):
+    """A fresh actor plays a seed exactly as the one it replaced; an actor whose environment raised is restarted
+    and answers the next reset."""
+    from apr.cluster.ray_workers import RayEnvWorkers
+
+    with RayEnvWorkers(1, "apr/ActiveGrasp-v0", {"dof": 4, "target": "env", "renderer": "tiny"},
+                       recycle_every=1) as workers:  # fmt: skip
+        workers.send_reset(0, 7)
+        first, _ = workers.receive(0)
+        before = workers.pid(0)
+        workers.send_reset(0, 7)
+        again, _ = workers.receive(0)
+        assert workers.pid(0) != before and workers.recycled == 1
+        for key in first:
+            assert np.array_equal(first[key], again[key]), key
+        workers.send_step(0, np.zeros(7, np.float32))  # a 4-DoF environment refuses a 7-number action
+        failure = workers.receive(0)
+        assert isinstance(failure, WorkerFailure) and workers.failures == 1, failure
+        workers.send_reset(0, 7)
+        after, _ = workers.receive(0)
+        assert np.array_equal(after["images"], first["images"])
 
 
 def test_the_campaign_trains_each_run_as_a_ray_task_and_builds_the_table_from_the_folders(two_nodes, tmp_path):

@@ -123,7 +123,7 @@ def test_signs_of_life_the_trained_policy_attempts_grasps_the_untrained_one_neve
     """
     base = preset("cpu-4d")
     config = dataclasses.replace(
-        base, total_grasps=24, max_train_minutes=0.0,
+        base, total_grasps=24, max_train_minutes=0.0, final_eval_episodes=0,
         random_grasps=8, updates_per_step=2.0, eval_every_grasps=0, eval_episodes=1, checkpoint_every_grasps=0,
         log_every_grasps=8, image_every_grasps=0, replay_capacity=2_000, runs_dir=tmp_path, run_name="signs-of-life",
     )  # fmt: skip

@@ -1,10 +1,12 @@
 """``apr bench backends``: the cost of running the environment workers as Ray actors, on one machine.
 
-It trains the same configuration twice, one run after the other, with the local worker pool and with Ray
-actors (a new local Ray instance, or ``--ray-address``), and prints grasps per minute, env steps per second and
-updates per second of each, their ratio, and whether the two runs computed the same numbers (every
-``metrics.csv`` column but the timings, and the final evaluation's episodes). The runs go to ``OUT/local`` and
-``OUT/ray``; ``OUT/backends.json`` keeps the figures with the machine and the command.
+First the environments alone: ``--env-episodes`` episodes of uniformly random actions with 1, 2, ...,
+``--workers`` workers of each backend, in env steps per second (how each pool scales with its workers). Then it
+trains the same configuration twice, one run after the other, with the local worker pool and with Ray actors (a
+new local Ray instance, or ``--ray-address``), and prints grasps per minute, env steps per second and updates
+per second of each, their ratio, and whether the two runs computed the same numbers (every ``metrics.csv``
+column but the timings, and the final evaluation's episodes). The runs go to ``OUT/local`` and ``OUT/ray``;
+``OUT/backends.json`` keeps the figures with the machine and the command.
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ class BackendsBenchArgs:
     """Grasps of each run (the preset's warm-up grasps included)."""
     workers: int = 0
     """Environment workers of each run; 0 = the preset's (or this machine's cores)."""
+    env_episodes: int = 16
+    """Episodes of random actions per (backend, worker count) in the environment-only part; 0 skips it."""
     eval_episodes: int = 10
     """Held-out episodes of each run's final evaluation (not timed: grasps per minute count training time)."""
     renderer: Literal["", "auto", "egl", "tiny"] = ""
@@ -47,7 +51,8 @@ def run(args: BackendsBenchArgs) -> dict:
     config = preset(args.preset)  # validates the name before any work
     checks.refuse("apr bench backends", [
         checks.at_least("--grasps", args.grasps, 1), checks.at_least("--workers", args.workers, 0),
-        checks.at_least("--eval-episodes", args.eval_episodes, 1), checks.output_folder("--out", args.out),
+        checks.at_least("--eval-episodes", args.eval_episodes, 1),
+        checks.at_least("--env-episodes", args.env_episodes, 0), checks.output_folder("--out", args.out),
         missing("ray", "apr bench backends"),
     ])  # fmt: skip
     config = dataclasses.replace(
@@ -66,6 +71,16 @@ def run(args: BackendsBenchArgs) -> dict:
     command = "apr bench backends " + " ".join(sys.argv[3:])
     figures: dict = {"preset": args.preset, "grasps": args.grasps, "workers": config.workers,
                      "machine": machine_description(), "command": command}  # fmt: skip
+    if args.env_episodes:
+        figures["env_steps_per_s"] = scaling = {}
+        print(f"--- environments alone: {args.env_episodes} episodes of random actions each")
+        for backend in ("local", "ray"):
+            scaling[backend] = {n: _env_steps_per_s(config, backend, n, args.env_episodes)
+                                for n in range(1, config.workers + 1)}  # fmt: skip
+        print("| workers | local env steps/s | Ray env steps/s | Ray / local |\n| --- | --- | --- | --- |")
+        for n in range(1, config.workers + 1):
+            local, ray = scaling["local"][n], scaling["ray"][n]
+            print(f"| {n} | {local:.2f} | {ray:.2f} | {ray / local:.3f} |")
     rows = {}
     for backend in ("local", "ray"):
         shutil.rmtree(args.out / backend, ignore_errors=True)
@@ -111,3 +126,28 @@ def _computed(row: dict[str, str]) -> dict[str, str]:
 def _final_outcomes(run_dir: Path) -> list[dict]:
     newest = sorted((run_dir / "eval").glob("eval_*.json"))[-1]
     return json.loads(newest.read_text())["outcomes"]
+
+
+def _env_steps_per_s(config, backend: str, workers: int, episodes: int) -> float:
+    """Env steps per second of ``episodes`` episodes of uniformly random actions on ``workers`` workers (the
+    pool's start not counted)."""
+    import time
+
+    import numpy as np
+
+    from apr.train.rollout import episode_seed, run_round
+    from apr.train.workers import open_workers
+
+    env, rng = config.env, np.random.default_rng(0)
+
+    def random_policy(observations: dict, phase: str) -> np.ndarray:
+        size = 3 if phase == "fixation" else env.dof
+        return rng.uniform(-1.0, 1.0, (len(observations["images"]), size)).astype(np.float32)
+
+    with open_workers(workers, env.env_id, env.make_kwargs("train"), backend, config.ray_address) as pool:
+        steps, started = 0, time.perf_counter()
+        for first in range(0, episodes, workers):
+            seeds = [episode_seed(0, k) for k in range(first, min(first + workers, episodes))]
+            results = run_round(pool, seeds, random_policy, env.dof, env.learned_fixation)
+            steps += sum(result.grasp_steps + env.learned_fixation for result in results)
+        return steps / (time.perf_counter() - started)

@@ -16,8 +16,10 @@ replaced by fresh ones every ``RECYCLE_EVERY_RESETS`` episodes.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
+import signal
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -32,7 +34,7 @@ READY_TIMEOUT_S = 300.0
 
 
 def connect(address: str = "") -> None:
-    """Connect this process to Ray, once: to ``address`` (``auto``, ``ray://HOST:10001``, ``HOST:6379``), or,
+    """Connect this process to Ray, once: to ``address`` (``auto`` or ``HOST:6379``), or,
     when empty, to the ``RAY_ADDRESS`` cluster or one started on this machine (``ray start``), or else to a new
     Ray instance on this machine. The actors' own output stays in Ray's log folder, off the console."""
     ray = require("ray", "--backend ray")
@@ -45,6 +47,9 @@ class EnvActor:
 
     def __init__(self, env_id: str, env_kwargs: dict[str, Any]):
         import apr  # noqa: F401  (registers the environments in this process)
+
+        with contextlib.suppress(ValueError):  # Ctrl-C is the trainer's to handle (not in the main thread: moot)
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
 
         self.env = gym.make(env_id, **env_kwargs)
 

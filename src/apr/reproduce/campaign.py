@@ -53,7 +53,7 @@ class Table1Args:
     """Where the runs train: on this machine; as Ray tasks of a cluster, one GPU and WORKERS actors each; or as a
     Slurm job array through submitit, one node's GPU and WORKERS+1 CPUs per run (pip install -e ".[cluster]")."""
     ray_address: str = ""
-    """The Ray cluster (--backend ray): auto, HOST:6379 or ray://HOST:10001; empty = RAY_ADDRESS, one started
+    """The Ray cluster (--backend ray): auto or HOST:6379; empty = RAY_ADDRESS, one started
     on this machine, or a new one here."""
     gpus_per_run: float = 1.0
     """GPUs each run reserves for its learner (ray, slurm; a whole number with slurm)."""

@@ -90,7 +90,7 @@ class TrainConfig:
     """Where the environment workers run: processes of this machine, or Ray actors spread over a Ray cluster's
     nodes (the learner stays in this process; ``pip install -e ".[cluster]"``). Either gives the same numbers."""
     ray_address: str = ""
-    """The Ray cluster of ``--backend ray``: ``auto``, ``HOST:6379`` or ``ray://HOST:10001``; empty = the
+    """The Ray cluster of ``--backend ray``: ``auto`` or ``HOST:6379``; empty = the
     ``RAY_ADDRESS`` cluster, one started on this machine with ``ray start``, or else a new one on this machine."""
     random_grasps: int = 200
     """Warm-up episodes with uniformly random actions before the policies act (ours; SAC practice)."""
