@@ -135,19 +135,15 @@ def _env_steps_per_s(config, backend: str, workers: int, episodes: int) -> float
 
     import numpy as np
 
-    from apr.train.rollout import episode_seed, run_round
+    from apr.train.rollout import episode_seed, random_policy, run_round
     from apr.train.workers import open_workers
 
-    env, rng = config.env, np.random.default_rng(0)
-
-    def random_policy(observations: dict, phase: str) -> np.ndarray:
-        size = 3 if phase == "fixation" else env.dof
-        return rng.uniform(-1.0, 1.0, (len(observations["images"]), size)).astype(np.float32)
-
+    env = config.env
+    policy = random_policy(env.dof, np.random.default_rng(0))
     with open_workers(workers, env.env_id, env.make_kwargs("train"), backend, config.ray_address) as pool:
         steps, started = 0, time.perf_counter()
         for first in range(0, episodes, workers):
             seeds = [episode_seed(0, k) for k in range(first, min(first + workers, episodes))]
-            results = run_round(pool, seeds, random_policy, env.dof, env.learned_fixation)
+            results = run_round(pool, seeds, policy, env.dof, env.learned_fixation)
             steps += sum(result.grasp_steps + env.learned_fixation for result in results)
         return steps / (time.perf_counter() - started)

@@ -114,6 +114,7 @@ def _baselines(config, episodes: int, path: Path) -> dict[str, dict]:
     from apr.envs.scripted import scripted_grasp_actions
     from apr.reproduce.policies import new_agent
     from apr.train.evaluation import evaluate, evaluate_policy
+    from apr.train.rollout import random_policy
 
     env = config.env
     key = json.dumps({"env": dataclasses.asdict(env), "episodes": episodes, "preset": config.preset}, sort_keys=True)
@@ -121,19 +122,15 @@ def _baselines(config, episodes: int, path: Path) -> dict[str, dict]:
         cached = json.loads(path.read_text())
         if cached.get("key") == key:
             return cached["results"]
-    rng = np.random.default_rng(0)
     dof = env.dof
-
-    def random_policy(observations, phase):
-        size = 3 if phase == "fixation" else dof
-        return rng.uniform(-1.0, 1.0, (len(observations["images"]), size)).astype(np.float32)
+    uniform = random_policy(dof, np.random.default_rng(0))
 
     def scripted_policy(observations, phase):
         return scripted_grasp_actions(observations["fixation"], observations["gripper"][:, :3], dof)
 
     workers = config.eval_workers
     policies = {"untrained": lambda: evaluate(new_agent(config), env, episodes, "test", workers),
-                "random": lambda: evaluate_policy(random_policy, env, episodes, "test", workers)}  # fmt: skip
+                "random": lambda: evaluate_policy(uniform, env, episodes, "test", workers)}  # fmt: skip
     if not env.learned_fixation:
         policies["scripted"] = lambda: evaluate_policy(scripted_policy, env, episodes, "test", workers)
     results = {}

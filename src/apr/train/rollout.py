@@ -20,6 +20,16 @@ Policy = Callable[[dict[str, np.ndarray], str], np.ndarray]
 """(batched observations, "grasp" or "fixation") -> actions (N, A) in [-1, 1]."""
 
 
+def random_policy(dof: int, rng: np.random.Generator) -> Policy:
+    """Uniformly random actions in [-1, 1]: ``dof`` numbers for the grasp, 3 for the fixation."""
+
+    def policy(observations: dict[str, np.ndarray], phase: str) -> np.ndarray:
+        size = 3 if phase == "fixation" else dof
+        return rng.uniform(-1.0, 1.0, (len(observations["images"]), size)).astype(np.float32)
+
+    return policy
+
+
 def episode_seed(run_seed: int, episode: int) -> int:
     """The environment seed of the run's ``episode``-th episode."""
     return int(np.random.SeedSequence([run_seed, episode]).generate_state(1)[0])
