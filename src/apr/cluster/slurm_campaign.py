@@ -51,12 +51,16 @@ def run_campaign_slurm(plans: Sequence[PlannedRun], folder: Path, partition: str
         print(f"{plan.run_dir}: {plan.status}, job {job.job_id} (logs: {folder}; run log: train.log)")
     print("waiting for the jobs; Ctrl-C stops waiting, not the jobs (then: apr reproduce table1 ... --table-only)")
     finished = []
-    for plan, job in zip(todo, jobs, strict=True):
-        try:
-            job.result()
-            code, outcome = 0, "finished"
-        except (submitit.core.utils.FailedJobError, submitit.core.utils.UncompletedJobError) as error:
-            code, outcome = 1, f"FAILED ({str(error).strip().splitlines()[-1]})"
-        finished.append((plan, code))
-        print(f"{plan.run_dir}: {outcome}")
+    try:
+        for plan, job in zip(todo, jobs, strict=True):
+            try:
+                job.result()
+                code, outcome = 0, "finished"
+            except (submitit.core.utils.FailedJobError, submitit.core.utils.UncompletedJobError) as error:
+                code, outcome = 1, f"FAILED ({str(error).strip().splitlines()[-1]})"
+            finished.append((plan, code))
+            print(f"{plan.run_dir}: {outcome}")
+    except KeyboardInterrupt:
+        raise SystemExit("stopped waiting; the jobs go on (squeue). When they are done, write the table with the "
+                         "same command and --table-only") from None  # fmt: skip
     return finished
