@@ -42,6 +42,14 @@ def read_rows(run_dir: Path) -> list[dict[str, str]]:
             for line in lines[1:]]  # fmt: skip
 
 
+def _parent_pid(stat: Path) -> int | None:
+    """The parent's process id from ``/proc/PID/stat`` (None if the process is gone)."""
+    try:
+        return int(stat.read_text().rsplit(")", 1)[1].split()[1])
+    except (OSError, IndexError, ValueError):
+        return None
+
+
 def small_run(tmp: Path, name: str, backend: str) -> TrainConfig:
     """Two workers, four grasps (two rounds: random actions, then the policy acting and the learner updating)."""
     base = preset("smoke")
@@ -160,6 +168,31 @@ def test_the_campaign_as_a_submitit_job_array_trains_the_runs_that_are_not_done(
     # A preempted task is requeued with its plan, which it plans again when it restarts: resume, not restart.
     requeued = CampaignJob().checkpoint(replanned[1])
     assert requeued.args == (replanned[1],) and isinstance(requeued.function, CampaignJob)
+
+
+@pytest.mark.slow
+def test_a_preempted_slurm_task_is_requeued_and_resumes_its_run_from_its_checkpoint(tmp_path: Path):
+    """submitit's local executor delivers the preemption signal as Slurm would; the task is requeued, plans its
+    run again and resumes it from the newest checkpoint instead of starting over."""
+    import time
+
+    out = tmp_path / "table1"
+    plans = plan_runs(("smoke",), [0], out, {**TINY_CAMPAIGN_RUN, "total_grasps": 8, "workers": 1})
+    executor = submitit.AutoExecutor(folder=out / "slurm", cluster="local")
+    executor.update_parameters(timeout_min=10, gpus_per_node=0)
+    job = executor.submit(CampaignJob(), plans[0])
+    checkpoints = out / "smoke__s0" / "checkpoints"
+    deadline = time.monotonic() + 300
+    while not list(checkpoints.glob("checkpoint_00000002.pt")) and time.monotonic() < deadline:
+        time.sleep(0.5)
+    controller = job._process.pid  # submitit's local controller; the task is its child process
+    (task,) = [int(stat.parent.name) for stat in Path("/proc").glob("[0-9]*/stat")
+               if _parent_pid(stat) == controller]  # fmt: skip
+    os.kill(task, signal.SIGUSR2)  # what Slurm sends a task before preempting it (submitit's --signal)
+    job.result()
+    log = (out / "smoke__s0" / "train.log").read_text()
+    assert "resumed" in log and "from checkpoint_" in log, log[-2000:]
+    assert json.loads((out / "smoke__s0" / "eval" / "eval_00000008.json").read_text())["final"]
 
 
 def test_apr_imports_without_ray_or_submitit_and_the_backends_say_how_to_install_them(tmp_path: Path):
