@@ -78,7 +78,7 @@ def local_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_a_ray_run_spreads_its_actors_over_both_nodes_and_gives_the_local_pools_numbers(two_nodes, local_run,
-                                                                                       tmp_path):  # fmt: skip
+                                                                                       tmp_path, capsys):  # fmt: skip
     trainer = Trainer(small_run(tmp_path, "ray", "ray"))
     learn, nodes = trainer._learn, []
 
@@ -88,6 +88,7 @@ def test_a_ray_run_spreads_its_actors_over_both_nodes_and_gives_the_local_pools_
 
     trainer._learn = learn_and_look
     ray_run = trainer.train()
+    assert "ray: 2 environment actors on 2 Ray nodes (renderer: 2 with tiny)" in capsys.readouterr().out
     cluster_nodes = {node["NodeID"] for node in ray.nodes() if node["Alive"]}
     assert len(cluster_nodes) == 2 and set(nodes[0]) == cluster_nodes, "the two actors share a node"
     rows = read_rows(local_run)

@@ -53,12 +53,15 @@ class EnvActor:
 
         self.env = gym.make(env_id, **env_kwargs)
 
-    def where(self) -> tuple[str, str, int]:
-        """(Ray node id, node IP address, process id) of this actor."""
+    def where(self) -> tuple[str, str, int, str]:
+        """(Ray node id, node IP address, process id, renderer in use) of this actor. The world is built here,
+        so the renderer is the one its episodes will use: ``auto`` falls back to TinyRenderer where EGL does not
+        load, and the driver should say so (this actor's warnings stay in Ray's logs)."""
         import ray
 
-        context = ray.get_runtime_context()
-        return context.get_node_id(), ray.util.get_node_ip_address(), os.getpid()
+        world = self.env.unwrapped.world
+        world.build()
+        return ray.get_runtime_context().get_node_id(), ray.util.get_node_ip_address(), os.getpid(), world.renderer
 
     def reset(self, seed: int) -> tuple[dict, dict]:
         return self.env.reset(seed=seed)
@@ -73,6 +76,7 @@ class _Slot:
     node_id: str = ""
     node_ip: str = ""
     pid: int = 0
+    renderer: str = ""
     pending: tuple[str, Any] | None = None
     """(command, Ray object reference) of the call whose answer has not been received yet."""
     failures_in_a_row: int = 0
@@ -125,6 +129,13 @@ class RayEnvWorkers:
         """The Ray node each actor runs on."""
         return [slot.node_id for slot in self._slots]
 
+    def describe(self) -> str:
+        """Where the actors run and what renders their views, in one line."""
+        nodes = len(set(self.node_ids()))
+        renderers = sorted({slot.renderer for slot in self._slots})
+        counts = ", ".join(f"{sum(slot.renderer == r for slot in self._slots)} with {r}" for r in renderers)
+        return f"{len(self)} environment actors on {nodes} Ray node{'s' * (nodes != 1)} (renderer: {counts})"
+
     def on_this_machine(self) -> int:
         """Actors on this machine's IP address: they share its cores with the learner."""
         here = self._ray.util.get_node_ip_address()
@@ -172,7 +183,8 @@ class RayEnvWorkers:
         deadline = time.monotonic() + READY_TIMEOUT_S
         while True:
             try:
-                slot.node_id, slot.node_ip, slot.pid = ray.get(slot.actor.where.remote(), timeout=READY_TIMEOUT_S)
+                answer = ray.get(slot.actor.where.remote(), timeout=READY_TIMEOUT_S)
+                slot.node_id, slot.node_ip, slot.pid, slot.renderer = answer
                 return
             except ray.exceptions.ActorDiedError:
                 slot.actor = self._new_actor()

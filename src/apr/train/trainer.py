@@ -278,8 +278,10 @@ class Trainer:
         self.writer = SummaryWriter(str(self.run_dir / "tb"))
         workers = self.workers = open_workers(config.workers, env.env_id, env.make_kwargs("train"), config.backend,
                                               config.ray_address)  # fmt: skip
-        if config.backend == "ray" and self.agent.device.type == "cpu":  # only the actors here take our cores
-            torch.set_num_threads(max(1, (os.cpu_count() or 1) - workers.on_this_machine()))
+        if config.backend == "ray":
+            print(f"ray: {workers.describe()}")
+            if self.agent.device.type == "cpu":  # only the actors on this machine take our cores
+                torch.set_num_threads(max(1, (os.cpu_count() or 1) - workers.on_this_machine()))
         previous_handler = signal.signal(signal.SIGINT, self._request_stop)
         started = time.perf_counter() - progress.wall_s
         bar = tqdm(total=config.total_grasps, initial=progress.grasps, unit="grasp", dynamic_ncols=True)

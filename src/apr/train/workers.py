@@ -101,6 +101,10 @@ class Workers(Protocol):
         """Workers that share this machine's cores with the learner."""
         ...
 
+    def describe(self) -> str:
+        """Where the workers run, in one line."""
+        ...
+
     def close(self) -> None: ...
 
     def __enter__(self) -> Workers: ...
@@ -157,6 +161,9 @@ class EnvWorkers:
 
     def on_this_machine(self) -> int:
         return len(self._workers)
+
+    def describe(self) -> str:
+        return f"{len(self)} environment processes on this machine"
 
     def send_reset(self, index: int, seed: int) -> None:
         if self.recycle_every > 0 and self._workers[index].resets >= self.recycle_every:
