@@ -4,6 +4,7 @@ the Table 1 campaign as Ray tasks and as a submitit job array (submitit's local 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import logging
@@ -13,6 +14,7 @@ import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -60,16 +62,27 @@ def small_run(tmp: Path, name: str, backend: str) -> TrainConfig:
     )  # fmt: skip
 
 
-@pytest.fixture(scope="module")
-def two_nodes() -> Iterator[Cluster]:
-    """A Ray cluster of two nodes (two raylets on this machine), two CPUs each, this process its driver."""
+@contextlib.contextmanager
+def two_node_cluster(second_node_cpus: int) -> Iterator[tuple[Cluster, Any]]:
+    """A Ray cluster of two nodes (two raylets on this machine; the head with two CPUs), this process its
+    driver; yields the cluster and the second node."""
+    ray.shutdown()  # a cluster a fixture of this module may still hold
     cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 2, "object_store_memory": 80 * 2**20})
-    cluster.add_node(num_cpus=2, object_store_memory=80 * 2**20)
+    second = cluster.add_node(num_cpus=second_node_cpus, object_store_memory=80 * 2**20)
     cluster.wait_for_nodes()
     ray.init(address=cluster.address, logging_level=logging.ERROR, log_to_driver=False)
-    yield cluster
-    ray.shutdown()
-    cluster.shutdown()
+    try:
+        yield cluster, second
+    finally:
+        ray.shutdown()
+        cluster.shutdown()
+
+
+@pytest.fixture(scope="module")
+def two_nodes() -> Iterator[Cluster]:
+    """Two nodes of two CPUs each."""
+    with two_node_cluster(second_node_cpus=2) as (cluster, _):
+        yield cluster
 
 
 @pytest.fixture(scope="module")
@@ -217,24 +230,19 @@ apr.cli.main(["reproduce", "table1", "--backend", "slurm", "--workers", "1", "--
 
 @pytest.mark.slow
 def test_a_node_lost_mid_round_costs_its_episode_and_its_actor_restarts_on_the_other_node(tmp_path: Path):
-    ray.shutdown()  # the module's cluster, when the default tests ran first
-    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 2, "object_store_memory": 80 * 2**20})
-    doomed = cluster.add_node(num_cpus=1, object_store_memory=80 * 2**20)
-    cluster.wait_for_nodes()
-    ray.init(address=cluster.address, logging_level=logging.ERROR, log_to_driver=False)
-    try:
+    with two_node_cluster(second_node_cpus=1) as (cluster, doomed):
         trainer = Trainer(small_run(tmp_path, "node-lost", "ray"))
-        learn, removed = trainer._learn, []
+        learn, removed, nodes = trainer._learn, [], []
 
         def remove_node_while_stepping(steps: int) -> None:
             if not removed and trainer.progress.grasps == 2:
                 cluster.remove_node(doomed)
                 removed.append(doomed)
+            nodes.append(set(trainer.workers.node_ids()))
             learn(steps)
 
         trainer._learn = remove_node_while_stepping
         rows = read_rows(trainer.train())
         assert removed and int(rows[-1]["lost_episodes"]) == 1 and int(rows[-1]["grasps"]) == 4
-    finally:
-        ray.shutdown()
-        cluster.shutdown()
+        alive = {node["NodeID"] for node in ray.nodes() if node["Alive"]}
+        assert len(nodes[0]) == 2 and nodes[-1] == alive and len(alive) == 1, (nodes, alive)
