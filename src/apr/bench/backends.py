@@ -4,9 +4,11 @@ First the environments alone: ``--env-episodes`` episodes of uniformly random ac
 ``--workers`` workers of each backend, in env steps per second (how each pool scales with its workers). Then it
 trains the same configuration twice, one run after the other, with the local worker pool and with Ray actors (a
 new local Ray instance, or ``--ray-address``), and prints grasps per minute, env steps per second and updates
-per second of each, their ratio, and whether the two runs computed the same numbers (every ``metrics.csv``
-column but the timings, and the final evaluation's episodes). The runs go to ``OUT/local`` and ``OUT/ray``;
-``OUT/backends.json`` keeps the figures with the machine and the command.
+per second of each from its first metrics row on (the local pool's processes start inside a run's clock, Ray's
+actors before it), their ratio, and whether the two runs computed the same numbers (every ``metrics.csv``
+column but the timings, and the final evaluation's episodes). The runs go to ``OUT/local`` and ``OUT/ray``
+(``--report-only`` reports the runs already there); ``OUT/backends.json`` keeps the figures with the machine
+and the command.
 """
 
 from __future__ import annotations
@@ -41,6 +43,9 @@ class BackendsBenchArgs:
     """A Ray cluster to use instead of a new instance on this machine (``auto``, ``HOST:6379``)."""
     out: Path = Path("results/backends")
     """Folder of the two runs and of ``backends.json``; runs already there are replaced."""
+    report_only: bool = False
+    """Run nothing: report the runs already in ``OUT/local`` and ``OUT/ray`` (and the environment-only figures
+    already in ``OUT/backends.json``)."""
 
 
 def run(args: BackendsBenchArgs) -> dict:
@@ -68,48 +73,84 @@ def run(args: BackendsBenchArgs) -> dict:
     from apr.machine import machine_description
     from apr.train.trainer import Trainer
 
+    saved = args.out / "backends.json"
+    previous = json.loads(saved.read_text()) if args.report_only and saved.exists() else {}
     command = "apr bench backends " + " ".join(sys.argv[3:])
     figures: dict = {"preset": args.preset, "grasps": args.grasps, "workers": config.workers,
-                     "machine": machine_description(), "command": command}  # fmt: skip
-    if args.env_episodes:
-        figures["env_steps_per_s"] = scaling = {}
+                     "machine": previous.get("machine", machine_description()),
+                     "command": previous.get("command", command)}  # fmt: skip
+    if args.report_only:
+        if "env_steps_per_s" in previous:
+            figures["env_steps_per_s"] = previous["env_steps_per_s"]
+    elif args.env_episodes:
         print(f"--- environments alone: {args.env_episodes} episodes of random actions each")
-        for backend in ("local", "ray"):
-            scaling[backend] = {n: _env_steps_per_s(config, backend, n, args.env_episodes)
-                                for n in range(1, config.workers + 1)}  # fmt: skip
-        print("| workers | local env steps/s | Ray env steps/s | Ray / local |\n| --- | --- | --- | --- |")
-        for n in range(1, config.workers + 1):
-            local, ray = scaling["local"][n], scaling["ray"][n]
-            print(f"| {n} | {local:.2f} | {ray:.2f} | {ray / local:.3f} |")
+        figures["env_steps_per_s"] = {
+            backend: {str(n): round(_env_steps_per_s(config, backend, n, args.env_episodes), 2)
+                      for n in range(1, config.workers + 1)}
+            for backend in ("local", "ray")
+        }  # fmt: skip
     rows = {}
     for backend in ("local", "ray"):
-        shutil.rmtree(args.out / backend, ignore_errors=True)
-        print(f"--- {backend}: {args.grasps} grasps, {config.workers} workers")
-        run_dir = Trainer(dataclasses.replace(config, backend=backend, run_name=backend)).train()
-        rows[backend] = _read_metrics(run_dir)
-        last = rows[backend][-1]
-        train_s = float(last["train_s"])
-        figures[backend] = {
-            "train_s": round(train_s, 1),
-            "grasps_per_min": round(60 * int(last["grasps"]) / train_s, 2),
-            "env_steps_per_s": round(int(last["env_steps"]) / train_s, 2),
-            "updates_per_s": round(int(last["updates"]) / train_s, 3),
-        }
+        if not args.report_only:
+            shutil.rmtree(args.out / backend, ignore_errors=True)
+            print(f"--- {backend}: {args.grasps} grasps, {config.workers} workers")
+            Trainer(dataclasses.replace(config, backend=backend, run_name=backend)).train()
+        if not (args.out / backend / "metrics.csv").exists():
+            raise SystemExit(f"{args.out / backend} holds no run to report: run apr bench backends without "
+                             "--report-only first")  # fmt: skip
+        rows[backend] = _read_metrics(args.out / backend)
+        figures[backend] = _speed(rows[backend])
     figures["ray_over_local_grasps_per_min"] = round(
-        figures["ray"]["grasps_per_min"] / figures["local"]["grasps_per_min"], 3
+        figures["ray"]["steady_grasps_per_min"] / figures["local"]["steady_grasps_per_min"], 3
     )
     same_metrics = [_computed(r) for r in rows["local"]] == [_computed(r) for r in rows["ray"]]
     same_eval = _final_outcomes(args.out / "local") == _final_outcomes(args.out / "ray")
     figures["same_numbers"] = same_metrics and same_eval
-    (args.out / "backends.json").write_text(json.dumps(figures, indent=2))
+    saved.write_text(json.dumps(figures, indent=2))
+    _print_report(figures)
+    return figures
+
+
+def _speed(rows: list[dict[str, str]]) -> dict:
+    """A run's speed over its whole training time, and from its first metrics row on. The second is the one to
+    compare: the local pool's processes start inside the run's clock, Ray's actors before it (the pool waits
+    for them, to say where they run)."""
+    first, last = rows[0], rows[-1]
+    train_s = float(last["train_s"])
+    span = train_s - float(first["train_s"])
+
+    def rate(column: str) -> float:
+        return (int(last[column]) - int(first[column])) / span
+
+    return {
+        "train_s": round(train_s, 1),
+        "grasps_per_min": round(60 * int(last["grasps"]) / train_s, 2),
+        "steady_from_grasps": int(first["grasps"]),
+        "steady_grasps_per_min": round(60 * rate("grasps"), 2),
+        "steady_env_steps_per_s": round(rate("env_steps"), 2),
+        "steady_updates_per_s": round(rate("updates"), 3),
+    }
+
+
+def _print_report(figures: dict) -> None:
     print(f"\nmachine: {figures['machine']}")
-    print("| backend | training s | grasps/min | env steps/s | updates/s |\n| --- | --- | --- | --- | --- |")
+    if "env_steps_per_s" in figures:
+        scaling = figures["env_steps_per_s"]
+        print("environments alone:\n| workers | local env steps/s | Ray env steps/s | Ray / local |\n"
+              "| --- | --- | --- | --- |")
+        for n, local in scaling["local"].items():
+            ray = scaling["ray"][n]
+            print(f"| {n} | {local:.2f} | {ray:.2f} | {ray / local:.3f} |")
+    start = figures["local"]["steady_from_grasps"]
+    print(f"training (the rates from grasp {start} on):\n"
+          "| backend | training s | grasps/min, whole run | grasps/min | env steps/s | updates/s |\n"
+          "| --- | --- | --- | --- | --- | --- |")  # fmt: skip
     for backend in ("local", "ray"):
         f = figures[backend]
-        print(f"| {backend} | {f['train_s']} | {f['grasps_per_min']} | {f['env_steps_per_s']} | {f['updates_per_s']} |")
-    print(f"Ray / local, grasps per minute: {figures['ray_over_local_grasps_per_min']:.3f}")
+        print(f"| {backend} | {f['train_s']} | {f['grasps_per_min']} | {f['steady_grasps_per_min']} | "
+              f"{f['steady_env_steps_per_s']} | {f['steady_updates_per_s']} |")  # fmt: skip
+    print(f"Ray / local, grasps per minute from grasp {start} on: {figures['ray_over_local_grasps_per_min']:.3f}")
     print(f"same metrics and final evaluation: {'yes' if figures['same_numbers'] else 'NO'}")
-    return figures
 
 
 def _read_metrics(run_dir: Path) -> list[dict[str, str]]:
@@ -124,8 +165,9 @@ def _computed(row: dict[str, str]) -> dict[str, str]:
 
 
 def _final_outcomes(run_dir: Path) -> list[dict]:
-    newest = sorted((run_dir / "eval").glob("eval_*.json"))[-1]
-    return json.loads(newest.read_text())["outcomes"]
+    from apr.reproduce.runs import final_eval
+
+    return final_eval(run_dir)["outcomes"]
 
 
 def _env_steps_per_s(config, backend: str, workers: int, episodes: int) -> float:
