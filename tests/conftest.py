@@ -7,6 +7,8 @@ environment made through these fixtures is closed at teardown.
 
 from __future__ import annotations
 
+import os
+import signal
 from collections.abc import Callable, Iterator
 
 import gymnasium
@@ -63,3 +65,32 @@ def assert_obs_equal(first: dict, second: dict, where: str = "") -> None:
 
 def obs_differ(first: dict, second: dict) -> bool:
     return any(not np.array_equal(np.asarray(first[k]), np.asarray(second[k])) for k in first)
+
+
+def assert_recycling_replays_a_seed(workers) -> dict:
+    """Worker 0 of a pool made with ``recycle_every=1``: its second reset runs in a fresh process (or actor),
+    which plays the seed exactly as the first one did. Returns the observation of that seed."""
+    workers.send_reset(0, 7)
+    first, _ = workers.receive(0)
+    before = workers.pid(0)
+    workers.send_reset(0, 7)
+    again, _ = workers.receive(0)
+    assert workers.pid(0) != before and workers.recycled == 1
+    assert_obs_equal(first, again, "after recycling")
+    return first
+
+
+def kill_worker_once_while_stepping(trainer, grasps: int, worker: int) -> list[int]:
+    """Make ``trainer`` SIGKILL env worker ``worker`` while it steps, once, when the run is at ``grasps`` grasps;
+    returns the list that receives the killed process id."""
+    learn, killed = trainer._learn, []
+
+    def kill_then_learn(steps: int) -> None:
+        if not killed and trainer.progress.grasps == grasps:
+            pid = trainer.workers.pid(worker)
+            os.kill(pid, signal.SIGKILL)  # a Ray actor too: a simulated node is a process of this machine
+            killed.append(pid)
+        learn(steps)
+
+    trainer._learn = kill_then_learn
+    return killed

@@ -18,11 +18,13 @@ from typing import Any
 
 import numpy as np
 import pytest
+from conftest import assert_recycling_replays_a_seed, kill_worker_once_while_stepping
 
 from apr.reproduce import campaign
 from apr.reproduce.campaign import Table1Args, plan_runs
+from apr.reproduce.runs import read_metrics, without_timings
 from apr.train.config import TrainConfig, preset
-from apr.train.trainer import TIMING_COLUMNS, Trainer
+from apr.train.trainer import Trainer
 from apr.train.workers import WorkerFailure
 
 ray = pytest.importorskip("ray", reason='the cluster extra is not installed: pip install -e ".[cluster]"')
@@ -38,10 +40,8 @@ TINY_CAMPAIGN_RUN = dict(total_grasps=2, random_grasps=1, eval_episodes=1, eval_
 
 
 def read_rows(run_dir: Path) -> list[dict[str, str]]:
-    lines = (run_dir / "metrics.csv").read_text().splitlines()
-    header = lines[0].split(",")
-    return [{k: v for k, v in zip(header, line.split(","), strict=True) if k not in TIMING_COLUMNS}
-            for line in lines[1:]]  # fmt: skip
+    """The run's metrics.csv rows, less the wall-clock columns."""
+    return without_timings(read_metrics(run_dir))
 
 
 def _parent_pid(stat: Path) -> int | None:
@@ -116,16 +116,7 @@ def test_a_ray_run_spreads_its_actors_over_both_nodes_and_gives_the_local_pools_
 def test_an_actor_killed_mid_round_is_restarted_and_the_run_finishes_counting_the_lost_episode(two_nodes,
                                                                                               tmp_path):  # fmt: skip
     trainer = Trainer(small_run(tmp_path, "killed", "ray"))
-    learn, killed = trainer._learn, []
-
-    def kill_once_while_stepping(steps: int) -> None:
-        if not killed and trainer.progress.grasps == 2:
-            pid = trainer.workers.pid(1)
-            os.kill(pid, signal.SIGKILL)  # a simulated node is a process of this machine
-            killed.append(pid)
-        learn(steps)
-
-    trainer._learn = kill_once_while_stepping
+    killed = kill_worker_once_while_stepping(trainer, grasps=2, worker=1)
     run = trainer.train()
     rows = read_rows(run)
     assert killed and int(rows[-1]["lost_episodes"]) == 1
@@ -140,14 +131,7 @@ def test_an_actor_is_recycled_after_its_episodes_and_an_environment_error_costs_
 
     with RayEnvWorkers(1, "apr/ActiveGrasp-v0", {"dof": 4, "target": "env", "renderer": "tiny"},
                        recycle_every=1) as workers:  # fmt: skip
-        workers.send_reset(0, 7)
-        first, _ = workers.receive(0)
-        before = workers.pid(0)
-        workers.send_reset(0, 7)
-        again, _ = workers.receive(0)
-        assert workers.pid(0) != before and workers.recycled == 1
-        for key in first:
-            assert np.array_equal(first[key], again[key]), key
+        first = assert_recycling_replays_a_seed(workers)
         workers.send_step(0, np.zeros(7, np.float32))  # a 4-DoF environment refuses a 7-number action
         failure = workers.receive(0)
         assert isinstance(failure, WorkerFailure) and workers.failures == 1, failure

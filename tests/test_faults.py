@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import assert_recycling_replays_a_seed
 
 from apr.cli import main
 from apr.envs import rendering
@@ -481,11 +482,4 @@ def test_a_worker_is_recycled_after_its_episodes_and_plays_a_seed_as_before():
     from apr.train.workers import EnvWorkers
 
     with EnvWorkers(1, ACTIVE, {"dof": 4, "target": "env", "renderer": "tiny"}, recycle_every=1) as workers:
-        workers.send_reset(0, 7)
-        first, _ = workers.receive(0)
-        before = workers.pid(0)
-        workers.send_reset(0, 7)
-        again, _ = workers.receive(0)
-        assert workers.pid(0) != before and workers.recycled == 1
-        for key in first:
-            assert np.array_equal(first[key], again[key]), key
+        assert_recycling_replays_a_seed(workers)

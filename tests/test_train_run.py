@@ -2,30 +2,20 @@
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
-import os
-import signal
 from pathlib import Path
 
 import pytest
+from conftest import kill_worker_once_while_stepping
 
 from apr.cli import main
 from apr.model.agent import APRAgent
+from apr.reproduce.runs import read_metrics, without_timings
 from apr.train.config import TrainConfig, preset
 from apr.train.rollout import run_round
-from apr.train.trainer import METRICS_COLUMNS, TIMING_COLUMNS, Trainer, latest_checkpoint
+from apr.train.trainer import METRICS_COLUMNS, Trainer, latest_checkpoint
 from apr.train.workers import EnvWorkers
-
-
-def read_metrics(run_dir: Path) -> list[dict[str, str]]:
-    with open(run_dir / "metrics.csv", newline="") as file:
-        return list(csv.DictReader(file))
-
-
-def computed(rows: list[dict[str, str]]) -> list[dict[str, str]]:
-    return [{k: v for k, v in row.items() if k not in TIMING_COLUMNS} for row in rows]
 
 
 def tiny_run(tmp: Path, name: str, **changes) -> TrainConfig:
@@ -71,7 +61,7 @@ def uninterrupted(tmp_path_factory) -> Path:
 def test_same_seed_gives_identical_metrics(uninterrupted: Path, tmp_path: Path):
     again = Trainer(tiny_run(tmp_path, "again")).train()
     rows = read_metrics(uninterrupted)
-    assert computed(read_metrics(again)) == computed(rows)
+    assert without_timings(read_metrics(again)) == without_timings(rows)
     assert int(rows[-1]["updates"]) > 0, "the learner never ran: the comparison would prove nothing"
 
 
@@ -88,22 +78,12 @@ def test_stopping_and_resuming_gives_the_uninterrupted_result(uninterrupted: Pat
     run = trainer.train()
     assert int(read_metrics(run)[-1]["grasps"]) == 2
     Trainer.resume(run).train()
-    assert computed(read_metrics(run)) == computed(read_metrics(uninterrupted))
+    assert without_timings(read_metrics(run)) == without_timings(read_metrics(uninterrupted))
 
 
 def test_a_killed_worker_is_replaced_and_the_run_finishes(tmp_path: Path):
     trainer = Trainer(tiny_run(tmp_path, "killed", total_grasps=3, checkpoint_every_grasps=0))
-    learn = trainer._learn
-    killed = []
-
-    def kill_once_while_stepping(steps: int) -> None:
-        if not killed and trainer.progress.grasps == 1:
-            pid = trainer.workers.pid(0)
-            os.kill(pid, signal.SIGKILL)
-            killed.append(pid)
-        learn(steps)
-
-    trainer._learn = kill_once_while_stepping
+    killed = kill_worker_once_while_stepping(trainer, grasps=1, worker=0)
     run = trainer.train()
     rows = read_metrics(run)
     assert killed and int(rows[-1]["lost_episodes"]) == 1

@@ -13,7 +13,6 @@ and the command.
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 import shutil
@@ -71,6 +70,7 @@ def run(args: BackendsBenchArgs) -> dict:
     config = dataclasses.replace(config, workers=config.resolved().workers)
 
     from apr.machine import machine_description
+    from apr.reproduce.runs import final_eval, read_metrics, without_timings
     from apr.train.trainer import Trainer
 
     saved = args.out / "backends.json"
@@ -95,16 +95,16 @@ def run(args: BackendsBenchArgs) -> dict:
             shutil.rmtree(args.out / backend, ignore_errors=True)
             print(f"--- {backend}: {args.grasps} grasps, {config.workers} workers")
             Trainer(dataclasses.replace(config, backend=backend, run_name=backend)).train()
-        if not (args.out / backend / "metrics.csv").exists():
+        rows[backend] = read_metrics(args.out / backend)
+        if not rows[backend]:
             raise SystemExit(f"{args.out / backend} holds no run to report: run apr bench backends without "
                              "--report-only first")  # fmt: skip
-        rows[backend] = _read_metrics(args.out / backend)
         figures[backend] = _speed(rows[backend])
     figures["ray_over_local_grasps_per_min"] = round(
         figures["ray"]["steady_grasps_per_min"] / figures["local"]["steady_grasps_per_min"], 3
     )
-    same_metrics = [_computed(r) for r in rows["local"]] == [_computed(r) for r in rows["ray"]]
-    same_eval = _final_outcomes(args.out / "local") == _final_outcomes(args.out / "ray")
+    same_metrics = without_timings(rows["local"]) == without_timings(rows["ray"])
+    same_eval = final_eval(args.out / "local")["outcomes"] == final_eval(args.out / "ray")["outcomes"]
     figures["same_numbers"] = same_metrics and same_eval
     saved.write_text(json.dumps(figures, indent=2))
     _print_report(figures)
@@ -151,23 +151,6 @@ def _print_report(figures: dict) -> None:
               f"{f['steady_env_steps_per_s']} | {f['steady_updates_per_s']} |")  # fmt: skip
     print(f"Ray / local, grasps per minute from grasp {start} on: {figures['ray_over_local_grasps_per_min']:.3f}")
     print(f"same metrics and final evaluation: {'yes' if figures['same_numbers'] else 'NO'}")
-
-
-def _read_metrics(run_dir: Path) -> list[dict[str, str]]:
-    with open(run_dir / "metrics.csv", newline="") as file:
-        return list(csv.DictReader(file))
-
-
-def _computed(row: dict[str, str]) -> dict[str, str]:
-    from apr.train.trainer import TIMING_COLUMNS
-
-    return {k: v for k, v in row.items() if k not in TIMING_COLUMNS}
-
-
-def _final_outcomes(run_dir: Path) -> list[dict]:
-    from apr.reproduce.runs import final_eval
-
-    return final_eval(run_dir)["outcomes"]
 
 
 def _env_steps_per_s(config, backend: str, workers: int, episodes: int) -> float:

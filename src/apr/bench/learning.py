@@ -169,8 +169,9 @@ def _write_csv(path: Path, rows: list[dict]) -> None:
 
 def _timing(run_dir: Path) -> dict:
     """Throughput and the split of a run's training time, from the last row of its ``metrics.csv``."""
-    with open(run_dir / "metrics.csv", newline="") as file:
-        last = list(csv.DictReader(file))[-1]
+    from apr.reproduce.runs import read_metrics
+
+    last = read_metrics(run_dir)[-1]
     train_s = float(last["train_s"])
     learner_s, act_s = float(last["learner_s"]), float(last["act_s"])
     return {

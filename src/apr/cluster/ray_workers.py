@@ -3,11 +3,11 @@ Ray cluster's nodes (``apr train --backend ray [--ray-address ADDR]``).
 
 Each actor is one process with one environment (one physics client, so EGL keeps one context per process) and
 reserves one CPU; they are spread over the cluster's nodes, or placed in the caller's placement group when
-there is one (a campaign run, :mod:`apr.cluster.campaign`). The learner and the policies' batched forward pass
+there is one (a campaign run, :mod:`apr.cluster.ray_campaign`). The learner and the policies' batched forward pass
 stay in the driver, on its GPU; an actor answers ``reset(seed)`` and ``step(action)``, exactly as a local
 worker does over its pipe, and returns the uint8 observations as NumPy arrays, which Ray hands to the driver
 without a copy when they share a node. So :func:`apr.train.rollout.run_round` drives both pools, and a run gives
-the same numbers on either (``docs/decisions.md``, "Ray actors step, they do not run whole episodes").
+the same numbers on either (``docs/decisions.md``, "Ray actors step; they do not run whole episodes").
 
 A dead actor (its process or its node) is restarted by Ray (``max_restarts``), an actor whose environment
 raised is restarted the same way, and ``receive`` reports the lost episode as the local pool does. Actors are

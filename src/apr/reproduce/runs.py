@@ -90,17 +90,29 @@ def read_run(run_dir: Path) -> RunSummary:
     )
 
 
+def read_metrics(run_dir: Path) -> list[dict[str, str]]:
+    """The rows of the run's ``metrics.csv``, oldest first (empty if it has none yet)."""
+    path = run_dir / "metrics.csv"
+    if not path.exists():
+        return []
+    with open(path, newline="") as file:
+        return list(csv.DictReader(file))
+
+
+def without_timings(rows: list[dict[str, str]]) -> list[dict[str, str]]:
+    """The rows less their wall-clock columns: what a run computed, to compare two runs of one configuration."""
+    from apr.train.trainer import TIMING_COLUMNS
+
+    return [{name: value for name, value in row.items() if name not in TIMING_COLUMNS} for row in rows]
+
+
 def eval_curve(run_dir: Path) -> tuple[np.ndarray, np.ndarray]:
     """Held-out success against grasps: the ``metrics.csv`` rows that carry an evaluation.
 
     Returns:
         grasps (int array) and success rates in [0, 1] (float array), by increasing grasps.
     """
-    path = run_dir / "metrics.csv"
-    if not path.exists():
-        return np.zeros(0, dtype=int), np.zeros(0)
-    with open(path, newline="") as file:
-        rows = [row for row in csv.DictReader(file) if row.get("eval_success", "") != ""]
+    rows = [row for row in read_metrics(run_dir) if row.get("eval_success", "") != ""]
     by_grasps = {int(row["grasps"]): float(row["eval_success"]) for row in rows}  # a later row wins
     grasps = np.array(sorted(by_grasps), dtype=int)
     return grasps, np.array([by_grasps[g] for g in grasps], dtype=float)
