@@ -107,8 +107,9 @@ def test_a_ray_run_spreads_its_actors_over_both_nodes_and_gives_the_local_pools_
     rows = read_rows(local_run)
     assert int(rows[-1]["updates"]) > 0, "the learner never ran: the comparison would prove nothing"
     assert read_rows(ray_run) == rows
-    ray_eval, local_eval = (json.loads((run / "eval" / "eval_00000004.json").read_text()) for run in (ray_run,
-                                                                                                     local_run))
+    ray_eval, local_eval = (
+        json.loads((run / "eval" / "eval_00000004.json").read_text()) for run in (ray_run, local_run)
+    )
     assert ray_eval["outcomes"] == local_eval["outcomes"]
     assert json.loads((ray_run / "config.json").read_text())["backend"] == "ray"
 

@@ -157,9 +157,7 @@ def test_no_intact_checkpoint_is_a_clear_error_listing_each_file(run_dir: Path):
     assert not (run_dir / "train.lock").exists()
 
 
-def test_a_writer_killed_between_temporary_file_and_rename_leaves_the_previous_checkpoint_usable(
-    run_dir: Path, capsys
-):
+def test_a_writer_killed_between_temporary_file_and_rename_leaves_the_previous_checkpoint_usable(run_dir: Path, capsys):
     """SIGKILL in the middle of a checkpoint: after the replay is renamed, before the checkpoint is."""
     writer = python(f"""
         import os, signal

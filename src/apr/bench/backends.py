@@ -136,8 +136,10 @@ def _print_report(figures: dict) -> None:
     print(f"\nmachine: {figures['machine']}")
     if "env_steps_per_s" in figures:
         scaling = figures["env_steps_per_s"]
-        print("environments alone:\n| workers | local env steps/s | Ray env steps/s | Ray / local |\n"
-              "| --- | --- | --- | --- |")
+        print(
+            "environments alone:\n| workers | local env steps/s | Ray env steps/s | Ray / local |\n"
+            "| --- | --- | --- | --- |"
+        )
         for n, local in scaling["local"].items():
             ray = scaling["ray"][n]
             print(f"| {n} | {local:.2f} | {ray:.2f} | {ray / local:.3f} |")

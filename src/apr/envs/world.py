@@ -216,9 +216,7 @@ class GraspWorld:
     def render(self, camera: Camera, segmentation: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
         """RGB (uint8, (256, 256, 3)) and, when asked, body ids (int32, (256, 256)) seen by ``camera``."""
         self.build()
-        return render(
-            self.client, camera, CAMERA.render_size, self.renderer, CAMERA.near, CAMERA.far, segmentation
-        )
+        return render(self.client, camera, CAMERA.render_size, self.renderer, CAMERA.near, CAMERA.far, segmentation)
 
 
 def passive_cameras() -> list[Camera]:

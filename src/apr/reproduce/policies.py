@@ -151,8 +151,10 @@ def training_description(manifest: dict) -> str:
         text += f" on {manifest['machine']}"
     evaluation = manifest.get("final_eval")
     if evaluation:
-        text += (f"; measured held-out success at those weights: {evaluation['successes']}/{evaluation['episodes']} "
-                 f"= {evaluation['success_rate']:.1%} (95% CI {evaluation['ci_low']:.1%}-{evaluation['ci_high']:.1%})")
+        text += (
+            f"; measured held-out success at those weights: {evaluation['successes']}/{evaluation['episodes']} "
+            f"= {evaluation['success_rate']:.1%} (95% CI {evaluation['ci_low']:.1%}-{evaluation['ci_high']:.1%})"
+        )
     else:
         text += "; no held-out evaluation of these exact weights was recorded"
     return text + "."
@@ -174,7 +176,11 @@ def load_policy(path: Path) -> PolicySnapshot:
 
 
 def package_checkpoint(
-    source: Path, out_dir: Path = PACKAGED_DIR, name: str = "", command: str = "", weights_format: str = "pt",
+    source: Path,
+    out_dir: Path = PACKAGED_DIR,
+    name: str = "",
+    command: str = "",
+    weights_format: str = "pt",
     machine: str = "",
 ) -> Path:
     """Write a packaged checkpoint (manifest and weights) from a run folder or a training checkpoint.

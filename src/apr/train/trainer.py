@@ -565,4 +565,3 @@ def _truncate_metrics(path: Path, grasps: int) -> None:
         writer = csv.DictWriter(file, fieldnames=METRICS_COLUMNS)
         writer.writeheader()
         writer.writerows(row for row in rows if int(row["grasps"]) <= grasps)
-
