@@ -12,6 +12,9 @@ the same numbers on either (``docs/decisions.md``, "Ray actors step; they do not
 A dead actor (its process or its node) is restarted by Ray (``max_restarts``), an actor whose environment
 raised is restarted the same way, and ``receive`` reports the lost episode as the local pool does. Actors are
 replaced by fresh ones every ``RECYCLE_EVERY_RESETS`` episodes.
+
+The trainer does not know Ray: its caller passes :class:`RayWorkers` (``Trainer(config, workers=RayWorkers(
+address))``; ``apr train --backend ray`` does), as it would pass any other :class:`apr.train.workers.WorkersFactory`.
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ from typing import Any
 import gymnasium as gym
 
 from apr.cluster import require
-from apr.train.workers import MAX_FAILURES_IN_A_ROW, RECYCLE_EVERY_RESETS, StepResult, WorkerFailure
+from apr.train.workers import MAX_FAILURES_IN_A_ROW, RECYCLE_EVERY_RESETS, StepResult, WorkerFailure, Workers
 
 READY_TIMEOUT_S = 300.0
 """How long a started or restarted actor may take to answer (a node may have to start one first)."""
@@ -212,3 +215,18 @@ class RayEnvWorkers:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+@dataclass(frozen=True)
+class RayWorkers:
+    """Opens :class:`RayEnvWorkers` on the Ray cluster at ``address`` (see :func:`connect`): the
+    :class:`apr.train.workers.WorkersFactory` of ``--backend ray``. Training pools reserve one CPU per actor,
+    evaluation pools none (the training actors wait while they run)."""
+
+    address: str = ""
+    backend = "ray"
+
+    def __call__(
+        self, num_workers: int, env_id: str, env_kwargs: dict[str, Any], *, evaluation: bool = False
+    ) -> Workers:
+        return RayEnvWorkers(num_workers, env_id, env_kwargs, self.address, cpus_per_worker=0.0 if evaluation else 1.0)

@@ -11,7 +11,7 @@ from typing import Annotated, Literal
 
 import tyro
 
-from apr.commands import checks
+from apr.commands import backends, checks
 from apr.model.config import ModelConfig
 from apr.train.config import DERIVED_MODEL_FIELDS, PRESETS, TrainConfig, flag, preset
 
@@ -99,8 +99,13 @@ def train(argv: list[str]) -> None:
     if _given(argv, "model.gqn_anneal_updates") and config.anneal_over_run:
         checks.refuse("apr train", ["--model.gqn-anneal-updates is set from --total-grasps while --anneal-over-run "
                                     "is on; add --no-anneal-over-run to set it yourself"])  # fmt: skip
+    checks.refuse("apr train", [*config.problems(), *backends.workers_problems(config.backend)])
+    workers = backends.workers_factory(config.backend, config.ray_address)
     try:
-        trainer = Trainer.resume(args.resume, config) if args.resume is not None else Trainer(config)
+        if args.resume is not None:
+            trainer = Trainer.resume(args.resume, config, workers=workers)
+        else:
+            trainer = Trainer(config, workers=workers)
     except RunFinished as finished:
         print(finished)
         return

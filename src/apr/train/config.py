@@ -88,7 +88,8 @@ class TrainConfig:
     """Environment processes (Ray actors with ``--backend ray``); 0 = one per CPU core of this machine."""
     backend: Literal["local", "ray"] = "local"
     """Where the environment workers run: processes of this machine, or Ray actors spread over a Ray cluster's
-    nodes (the learner stays in this process; ``pip install -e ".[cluster]"``). Either gives the same numbers."""
+    nodes (the learner stays in this process; ``pip install -e ".[cluster]"``). Either gives the same numbers.
+    ``apr train`` opens the workers this names and passes them to the trainer (``Trainer(config, workers=...)``)."""
     ray_address: str = ""
     """The Ray cluster of ``--backend ray``: ``auto`` or ``HOST:6379``; empty = the
     ``RAY_ADDRESS`` cluster, one started on this machine with ``ray start``, or else a new one on this machine."""
@@ -145,14 +146,9 @@ class TrainConfig:
             problems.append(f"--run-name {self.run_name!r} must be a plain folder name (no path separators)")
         if self.runs_dir.exists() and not self.runs_dir.is_dir():
             problems.append(f"--runs-dir {self.runs_dir} is a file, not a folder")
-        if self.backend == "ray":
-            from apr.cluster import missing
-
-            problems.append(missing("ray", "--backend ray"))
-            if self.workers == 0:
-                problems.append("--workers 0 means this machine's cores; with --backend ray give the number of "
-                                "environment actors to spread over the cluster (at most its CPUs)")  # fmt: skip
-        problems = [problem for problem in problems if problem]
+        if self.backend == "ray" and self.workers == 0:
+            problems.append("--workers 0 means this machine's cores; with --backend ray give the number of "
+                            "environment actors to spread over the cluster (at most its CPUs)")  # fmt: skip
         device = self.model.device
         if device.startswith("cuda"):
             import torch

@@ -10,7 +10,7 @@ from dataclasses import asdict, dataclass, field
 from apr.model.agent import APRAgent
 from apr.train.config import EnvConfig
 from apr.train.rollout import EpisodeResult, Policy, run_round
-from apr.train.workers import Backend, open_workers
+from apr.train.workers import LocalWorkers, WorkersFactory
 
 EVAL_SEED = 2_000_000_000
 """Evaluation episodes use fixed seeds (EVAL_SEED + k), the same for every checkpoint and run: paired comparisons."""
@@ -44,32 +44,33 @@ class EvalResult:
 
 
 def evaluate(agent: APRAgent, env: EnvConfig, episodes: int, split: str = "test", num_workers: int = 1,
-             backend: Backend = "local", ray_address: str = "") -> EvalResult:  # fmt: skip
+             workers: WorkersFactory | None = None) -> EvalResult:  # fmt: skip
     """Run ``episodes`` episodes with the mean action of both policies; lost episodes are rerun."""
 
     def policy(observations, phase):
         return agent.act(observations, deterministic=True, policy=phase)
 
-    return evaluate_policy(policy, env, episodes, split, num_workers, backend, ray_address)
+    return evaluate_policy(policy, env, episodes, split, num_workers, workers)
 
 
 def evaluate_policy(policy: Policy, env: EnvConfig, episodes: int, split: str = "test", num_workers: int = 1,
-                    backend: Backend = "local", ray_address: str = "") -> EvalResult:  # fmt: skip
+                    workers: WorkersFactory | None = None) -> EvalResult:  # fmt: skip
     """Run ``episodes`` episodes of ``policy`` on the evaluation seeds ``EVAL_SEED + k`` (the same episodes for
-    every policy, checkpoint and run); lost episodes are rerun with the next seeds. With ``backend="ray"`` the
-    environments are Ray actors that reserve no CPU (a run's training actors wait meanwhile)."""
+    every policy, checkpoint and run); lost episodes are rerun with the next seeds. ``workers`` opens the
+    environments (default: :class:`LocalWorkers`, processes of this machine), as an evaluation pool: Ray actors
+    then reserve no CPU (a run's training actors wait meanwhile)."""
     if episodes < 1:
         raise ValueError(f"episodes must be at least 1, got {episodes}")
+    open_workers = workers or LocalWorkers()
     done: list[EpisodeResult] = []
     lost = 0
     next_seed = EVAL_SEED
-    with open_workers(min(num_workers, episodes), env.env_id, env.make_kwargs(split), backend, ray_address,
-                      reserve_cpus=False) as workers:  # fmt: skip
+    with open_workers(min(num_workers, episodes), env.env_id, env.make_kwargs(split), evaluation=True) as pool:
         while len(done) < episodes:
-            count = min(len(workers), episodes - len(done))
+            count = min(len(pool), episodes - len(done))
             seeds = list(range(next_seed, next_seed + count))
             next_seed += count
-            for result in run_round(workers, seeds, policy, env.dof, env.learned_fixation):
+            for result in run_round(pool, seeds, policy, env.dof, env.learned_fixation):
                 if result.lost:
                     lost += 1
                 else:

@@ -47,7 +47,7 @@ from apr.train.config import ConfigError, TrainConfig, flag, resume_conflicts
 from apr.train.evaluation import evaluate
 from apr.train.replay import ReplayBuffer, ReplaySpec
 from apr.train.rollout import EpisodeResult, episode_seed, run_round
-from apr.train.workers import StepResult, open_workers
+from apr.train.workers import LocalWorkers, StepResult, WorkersFactory
 
 METRICS_COLUMNS = (
     "grasps", "env_steps", "updates", "wall_s", "train_success", "eval_success", "eval_ci_low", "eval_ci_high",
@@ -137,10 +137,21 @@ class Trainer:
 
     ``Trainer(config, run_dir=FOLDER)`` starts a new run in a given folder (which may exist). The run folder is
     locked (``train.lock``) from then until ``train()`` returns or :meth:`close` is called.
+
+    ``workers`` opens the environment workers (:class:`apr.train.workers.WorkersFactory`; default: local
+    processes). It must serve ``config.backend``: a Ray run takes ``workers=apr.cluster.ray_workers.RayWorkers(
+    config.ray_address)``, which ``apr train --backend ray`` passes.
     """
 
-    def __init__(self, config: TrainConfig, run_dir: Path | None = None, *, _resuming: bool = False):
+    def __init__(self, config: TrainConfig, run_dir: Path | None = None, *, workers: WorkersFactory | None = None,
+                 _resuming: bool = False):  # fmt: skip
         config.check()  # everything is checked and built before a run folder is touched
+        self.workers_factory = workers or LocalWorkers()
+        if self.workers_factory.backend != config.backend:
+            raise ConfigError(
+                f"--backend {config.backend}: this trainer was given {self.workers_factory.backend} workers; pass "
+                f"the factory of the backend (apr train does: --backend ray opens apr.cluster.ray_workers.RayWorkers)"
+            )
         self.config = config = config.resolved()
 
         spec = ReplaySpec(
@@ -200,9 +211,11 @@ class Trainer:
             return TrainConfig.from_json(found[1]["config"])
 
     @classmethod
-    def resume(cls, run_dir: Path, config: TrainConfig | None = None) -> Trainer:
+    def resume(
+        cls, run_dir: Path, config: TrainConfig | None = None, *, workers: WorkersFactory | None = None
+    ) -> Trainer:
         """Continue the run in ``run_dir`` from its newest intact checkpoint (``config``: the saved one, or a
-        changed copy of it, e.g. with more ``total_grasps``).
+        changed copy of it, e.g. with more ``total_grasps``; ``workers``: as for a new run).
 
         Nothing in the folder changes until the new configuration has been checked against the checkpoint's:
         a field that cannot change on resume is refused by name (:class:`ConfigError`), a finished run raises
@@ -211,7 +224,7 @@ class Trainer:
         """
         run_dir = Path(run_dir)
         saved = cls.saved_config(run_dir)
-        trainer = cls(config or saved, _resuming=True)
+        trainer = cls(config or saved, workers=workers, _resuming=True)
         config = trainer.config
         lock = RunLock(run_dir)
         try:
@@ -276,10 +289,9 @@ class Trainer:
         from torch.utils.tensorboard import SummaryWriter
 
         self.writer = SummaryWriter(str(self.run_dir / "tb"))
-        workers = self.workers = open_workers(config.workers, env.env_id, env.make_kwargs("train"), config.backend,
-                                              config.ray_address)  # fmt: skip
-        if config.backend == "ray":
-            print(f"ray: {workers.describe()}")
+        workers = self.workers = self.workers_factory(config.workers, env.env_id, env.make_kwargs("train"))
+        if config.backend != "local":
+            print(f"{config.backend}: {workers.describe()}")
             if self.agent.device.type == "cpu":  # only the actors on this machine take our cores
                 torch.set_num_threads(max(1, (os.cpu_count() or 1) - workers.on_this_machine()))
         previous_handler = signal.signal(signal.SIGINT, self._request_stop)
@@ -409,7 +421,7 @@ class Trainer:
         config = self.config
         started = time.perf_counter()
         result = evaluate(self.agent, config.env, episodes or config.eval_episodes, "test", config.eval_workers,
-                          config.backend, config.ray_address).to_dict()  # fmt: skip
+                          self.workers_factory).to_dict()  # fmt: skip
         elapsed = time.perf_counter() - started
         self.progress.eval_s += elapsed
         self.progress.wall_s += elapsed  # the round loop recomputes it from the start time; the same sum

@@ -12,7 +12,7 @@ import multiprocessing
 import signal
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
-from typing import Any, Literal, Protocol
+from typing import Any, Protocol
 
 import gymnasium as gym
 
@@ -80,10 +80,6 @@ def _serve(connection: Connection, env_id: str, env_kwargs: dict[str, Any]) -> N
         connection.close()
 
 
-Backend = Literal["local", "ray"]
-"""Where environment workers run: processes of this machine, or Ray actors anywhere on a Ray cluster."""
-
-
 class Workers(Protocol):
     """What a round of episodes needs of a pool of environments (:func:`apr.train.rollout.run_round`)."""
 
@@ -112,18 +108,35 @@ class Workers(Protocol):
     def __exit__(self, *exc: object) -> None: ...
 
 
-def open_workers(num_workers: int, env_id: str, env_kwargs: dict[str, Any], backend: Backend = "local",
-                 ray_address: str = "", reserve_cpus: bool = True) -> Workers:  # fmt: skip
-    """A pool of ``num_workers`` environments: :class:`EnvWorkers` (local processes) or, with ``backend="ray"``,
-    :class:`apr.cluster.ray_workers.RayEnvWorkers` (Ray actors; ``reserve_cpus=False`` for evaluation actors,
-    which run while the training actors wait)."""
-    if backend == "ray":
-        from apr.cluster.ray_workers import RayEnvWorkers
+class WorkersFactory(Protocol):
+    """Opens the pool of environments a run or an evaluation steps.
 
-        return RayEnvWorkers(num_workers, env_id, env_kwargs, ray_address, cpus_per_worker=1.0 if reserve_cpus else 0)
-    if backend != "local":
-        raise ValueError(f"unknown backend {backend!r}; choose local or ray")
-    return EnvWorkers(num_workers, env_id, env_kwargs)
+    The caller chooses it and passes it down (``Trainer(config, workers=...)``, ``evaluate(..., workers=...)``),
+    as a Stable-Baselines3 user chooses a VecEnv: :class:`LocalWorkers` (processes of this machine, the default)
+    or ``apr.cluster.ray_workers.RayWorkers`` (Ray actors). Training never imports the cluster layer.
+    """
+
+    backend: str
+    """The ``TrainConfig.backend`` this factory serves ("local", "ray"); a trainer refuses a factory whose backend
+    is not its configuration's, so that ``config.json`` says where a run's environments ran."""
+
+    def __call__(
+        self, num_workers: int, env_id: str, env_kwargs: dict[str, Any], *, evaluation: bool = False
+    ) -> Workers:
+        """A pool of ``num_workers`` environments ``gymnasium.make(env_id, **env_kwargs)``; ``evaluation``: for
+        held-out episodes, which run while the training pool waits (a Ray pool then reserves no CPU)."""
+        ...
+
+
+class LocalWorkers:
+    """Opens :class:`EnvWorkers`, one process of this machine per environment (``--backend local``)."""
+
+    backend = "local"
+
+    def __call__(
+        self, num_workers: int, env_id: str, env_kwargs: dict[str, Any], *, evaluation: bool = False
+    ) -> Workers:
+        return EnvWorkers(num_workers, env_id, env_kwargs)
 
 
 class EnvWorkers:
