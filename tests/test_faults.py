@@ -307,7 +307,7 @@ def test_derived_model_fields_are_refused_not_dropped(tmp_path: Path, monkeypatc
         main([*base, "--model.gqn-anneal-updates", "5000"])
 
     class Recorder:
-        def __init__(self, config: TrainConfig):
+        def __init__(self, config: TrainConfig, workers=None):
             started.append(config)
 
         def train(self) -> Path:
@@ -372,7 +372,7 @@ VECTOR_SCRIPT = """
     import gymnasium, numpy as np
     import apr
 
-    make = lambda: gymnasium.make("apr/ActiveGrasp-v0", dof=4)  # the default renderer
+    make = lambda: gymnasium.make("apr/ActiveGrasp-v0", dof=4, renderer="auto")  # EGL where it loads
     if sys.argv[1] == "after-egl":  # this process renders with EGL before it forks
         env = make()
         env.reset(seed=0)
@@ -399,8 +399,8 @@ def run_script(script: str, *args: str, timeout: float = 240) -> subprocess.Comp
         pytest.fail(f"hung for {timeout} s: {error.stderr}")
 
 
-def test_async_vector_env_with_the_default_renderer_and_fork_resets_quietly_and_renders_as_one_env():
-    """The default renderer in gymnasium's AsyncVectorEnv with its default fork context: no hang, each sub-env
+def test_async_vector_env_with_the_auto_renderer_and_fork_resets_quietly_and_renders_as_one_env():
+    """renderer="auto" in gymnasium's AsyncVectorEnv with its default fork context: no hang, each sub-env
     renders as a lone environment does, and the console holds nothing of pybullet's (nor of its children)."""
     result = run_script(VECTOR_SCRIPT, "clean")
     assert result.returncode == 0, result.stderr
@@ -418,19 +418,20 @@ def test_a_fork_after_egl_fails_at_once_naming_the_fix():
     assert "context='spawn'" in result.stderr and "renderer='tiny'" in result.stderr
 
 
-def test_two_default_environments_in_one_process_see_the_same_images():
+def test_two_auto_environments_in_one_process_see_the_same_images():
+    """renderer="auto" never mixes renderers in a process: a second world while an EGL one is open is refused."""
     import gymnasium
 
-    first = gymnasium.make(ACTIVE, dof=4)
+    first = gymnasium.make(ACTIVE, dof=4, renderer="auto")
     try:
         observation, _ = first.reset(seed=3)
         if first.unwrapped.world.renderer != "egl":
-            pytest.skip("EGL does not load here; the default renderer is TinyRenderer for the whole process")
+            pytest.skip("EGL does not load here; auto is TinyRenderer for the whole process")
         with pytest.raises(RuntimeError, match="serves one world per process"):
-            gymnasium.make(ACTIVE, dof=4)  # it would render with TinyRenderer: refused, not mixed
+            gymnasium.make(ACTIVE, dof=4, renderer="auto")  # it would render with TinyRenderer: refused, not mixed
     finally:
         first.close()
-    second = gymnasium.make(ACTIVE, dof=4)
+    second = gymnasium.make(ACTIVE, dof=4, renderer="auto")
     try:
         second.reset(seed=5)
         again, _ = second.reset(seed=3)
@@ -440,7 +441,7 @@ def test_two_default_environments_in_one_process_see_the_same_images():
     finally:
         second.close()
     with pytest.raises(RuntimeError, match="serves one world per process") as refused:
-        gymnasium.vector.SyncVectorEnv([lambda: gymnasium.make(ACTIVE, dof=4)] * 2)
+        gymnasium.vector.SyncVectorEnv([lambda: gymnasium.make(ACTIVE, dof=4, renderer="auto")] * 2)
     refused.value.__traceback__ = None  # its frames hold the vector's first sub-env, which holds EGL
     del refused
     gc.collect()

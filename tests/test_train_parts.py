@@ -160,6 +160,23 @@ def test_a_trainer_takes_only_the_workers_of_its_backend_and_a_campaign_only_its
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_trainer_records_what_its_workers_render_with_and_warns_when_it_changes(tmp_path: Path, capsys):
+    from apr.train.trainer import Trainer
+
+    run = Trainer(dataclasses.replace(preset("smoke"), runs_dir=tmp_path, run_name="renderers"))
+    try:
+        run._record_renderer(["egl", "egl"])
+        assert run.renderer == "egl" and "renderer: egl" in capsys.readouterr().out
+        run._record_renderer(["tiny", "tiny"])  # a resume where EGL no longer loads
+        assert run.renderer == "mixed" and "trained on egl images until now" in capsys.readouterr().out
+        run.renderer = ""  # a checkpoint from before the renderer was recorded
+        run._record_renderer(["egl", "tiny"])  # workers that disagree (a Ray cluster, some nodes without EGL)
+        out = capsys.readouterr().out
+        assert run.renderer == "mixed" and "1 with egl, 1 with tiny" in out and "two kinds of images" in out
+    finally:
+        run.close()
+
+
 def test_a_killed_worker_is_replaced_and_the_episode_reported_lost():
     kwargs = {"dof": 4, "target": "env", "renderer": "tiny"}
     with EnvWorkers(1, "apr/ActiveGrasp-v0", kwargs) as workers:

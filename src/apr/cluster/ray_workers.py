@@ -30,7 +30,14 @@ from typing import Any
 import gymnasium as gym
 
 from apr.cluster import require
-from apr.train.workers import MAX_FAILURES_IN_A_ROW, RECYCLE_EVERY_RESETS, StepResult, WorkerFailure, Workers
+from apr.train.workers import (
+    MAX_FAILURES_IN_A_ROW,
+    RECYCLE_EVERY_RESETS,
+    StepResult,
+    WorkerFailure,
+    Workers,
+    renderer_counts,
+)
 
 READY_TIMEOUT_S = 300.0
 """How long a started or restarted actor may take to answer (a node may have to start one first)."""
@@ -62,9 +69,8 @@ class EnvActor:
         load, and the driver should say so (this actor's warnings stay in Ray's logs)."""
         import ray
 
-        world = self.env.unwrapped.world
-        world.build()
-        return ray.get_runtime_context().get_node_id(), ray.util.get_node_ip_address(), os.getpid(), world.renderer
+        renderer = self.env.unwrapped.renderer_in_use()
+        return ray.get_runtime_context().get_node_id(), ray.util.get_node_ip_address(), os.getpid(), renderer
 
     def reset(self, seed: int) -> tuple[dict, dict]:
         return self.env.reset(seed=seed)
@@ -135,9 +141,12 @@ class RayEnvWorkers:
     def describe(self) -> str:
         """Where the actors run and what renders their views, in one line."""
         nodes = len(set(self.node_ids()))
-        renderers = sorted({slot.renderer for slot in self._slots})
-        counts = ", ".join(f"{sum(slot.renderer == r for slot in self._slots)} with {r}" for r in renderers)
+        counts = renderer_counts(self.renderers())
         return f"{len(self)} environment actors on {nodes} Ray node{'s' * (nodes != 1)} (renderer: {counts})"
+
+    def renderers(self) -> list[str]:
+        """The renderer each actor's environment uses (known since it answered first)."""
+        return [slot.renderer for slot in self._slots]
 
     def on_this_machine(self) -> int:
         """Actors on this machine's IP address: they share its cores with the learner."""

@@ -127,6 +127,9 @@ class EvalArgs:
     """Write the result (rate, 95% interval, per-episode outcomes) to this JSON file."""
     workers: int = 0
     """Environment processes; 0 = the run's number of workers."""
+    renderer: Literal["trained", "auto", "egl", "tiny"] = "trained"
+    """trained: the renderer the checkpoint's policy was trained with (refused where it cannot serve here); auto,
+    egl or tiny: that one, with a warning when the policy was trained on the other (its images differ)."""
 
 
 def eval_checkpoint(path: Path) -> tuple[Path, dict]:
@@ -164,7 +167,9 @@ def eval_checkpoint(path: Path) -> tuple[Path, dict]:
 
 
 def evaluate(args: EvalArgs) -> None:
+    from apr.envs.rendering import EGL_INSTALL
     from apr.model.agent import APRAgent
+    from apr.train.evaluation import RendererMismatch, renderer_request
     from apr.train.evaluation import evaluate as run_evaluation
 
     checks.refuse("apr eval", [
@@ -174,14 +179,28 @@ def evaluate(args: EvalArgs) -> None:
     ])  # fmt: skip
     checkpoint, state = eval_checkpoint(args.path)
     config = TrainConfig.from_json(state["config"])
+    trained = state.get("renderer", "")
+    if not trained:
+        print(f"{checkpoint.name} does not record the renderer it was trained with (written before apr recorded "
+              f"it): evaluating with the run's setting, renderer={config.env.renderer!r}, unchecked")  # fmt: skip
+    asked = renderer_request(trained, config.env.renderer) if args.renderer == "trained" else args.renderer
+    env = dataclasses.replace(config.env, renderer=asked)
     agent = APRAgent(config.model)
     agent.load_state_dict(state["agent"])
-    result = run_evaluation(agent, config.env, args.episodes, args.split, args.workers or config.workers)
+    mismatch = "refuse" if args.renderer == "trained" else "warn"
+    try:
+        result = run_evaluation(agent, env, args.episodes, args.split, args.workers or config.workers,
+                                trained_renderer=trained, on_mismatch=mismatch)  # fmt: skip
+    except RendererMismatch as refused:
+        where = EGL_INSTALL if refused.trained == "egl" else f"evaluate where {refused.trained} serves"
+        raise SystemExit(f"apr eval: error: {refused}. To measure the policy on its own images, {where}; or give "
+                         f"--renderer {refused.actual} to evaluate it on these anyway") from None  # fmt: skip
     summary = (f"{checkpoint}: {result.success_rate:.1%} success on {result.episodes} {args.split} episodes "
-               f"(95% CI {result.ci_low:.1%}-{result.ci_high:.1%})")  # fmt: skip
+               f"(95% CI {result.ci_low:.1%}-{result.ci_high:.1%}; renderer {result.renderer})")  # fmt: skip
     print(summary)
     if args.json:
-        payload = {**result.to_dict(), "checkpoint": str(checkpoint), "grasps": state["progress"]["grasps"]}
+        payload = {**result.to_dict(), "checkpoint": str(checkpoint), "grasps": state["progress"]["grasps"],
+                   "trained_renderer": trained}  # fmt: skip
         args.json.write_text(json.dumps(payload, indent=2))
 
 

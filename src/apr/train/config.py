@@ -47,7 +47,9 @@ class EnvConfig:
     foveation: Literal["logpolar", "resize"] = "logpolar"
     """Log-polar-like warp or plain resize (the "w/o log-polar" ablation, section 4C). Passive: resize."""
     renderer: Literal["auto", "egl", "tiny"] = "auto"
-    """EGL when its plugin loads, else TinyRenderer."""
+    """auto: EGL when its plugin loads, else TinyRenderer (the environments' own default is tiny; each worker is
+    a process with one environment, so EGL's one world per process is no limit here). What the workers resolved
+    it to is recorded in the checkpoints, and evaluations of the policy are checked against it."""
     reach_scale: float = 10.0
     """Reach reward per metre of progress toward the fixation point (ours; the paper gives no formula). At 1.0
     the reach reward (at most ~0.06 a step) is drowned by SAC's entropy bonus: docs/decisions.md."""

@@ -44,10 +44,10 @@ from apr.train.checkpoints import (
     write_text_atomically,
 )
 from apr.train.config import ConfigError, TrainConfig, flag, resume_conflicts
-from apr.train.evaluation import evaluate
+from apr.train.evaluation import evaluate, renderer_request
 from apr.train.replay import ReplayBuffer, ReplaySpec
 from apr.train.rollout import EpisodeResult, episode_seed, run_round
-from apr.train.workers import LocalWorkers, StepResult, WorkersFactory
+from apr.train.workers import LocalWorkers, StepResult, WorkersFactory, pool_renderer, renderer_counts
 
 METRICS_COLUMNS = (
     "grasps", "env_steps", "updates", "wall_s", "train_success", "eval_success", "eval_ci_low", "eval_ci_high",
@@ -178,6 +178,10 @@ class Trainer:
             torch.set_num_threads(max(1, (os.cpu_count() or 1) - config.workers))
         self.rng = np.random.default_rng(config.seed)
         self.progress = Progress()
+        self.renderer = ""
+        """What the training images so far came from: "egl", "tiny", or "mixed" (the workers did not agree, or a
+        resume changed it); "" before the workers first answer. Saved in every checkpoint, and evaluations of its
+        policy are checked against it."""
         self._recorder = _Recorder(self.replay)
         self._stop_requested = False
         self._lock: RunLock | None = None
@@ -276,6 +280,7 @@ class Trainer:
             reason = str(error).strip().splitlines()[0]
             raise ConfigError(f"{checkpoint.name} does not fit this configuration: {reason}") from None
         self.progress = Progress(**state["progress"])
+        self.renderer = state.get("renderer", "")  # checkpoints written before the renderer was recorded: ""
         self.rng.bit_generator.state = state["rng"]
         try:
             self.replay.load(replay_file(checkpoint, state))
@@ -298,6 +303,7 @@ class Trainer:
         started = time.perf_counter() - progress.wall_s
         bar = tqdm(total=config.total_grasps, initial=progress.grasps, unit="grasp", dynamic_ncols=True)
         try:
+            self._record_renderer(workers.renderers())
             while not self._finished() and not self._stop_requested:
                 before = progress.grasps
                 count = min(len(workers), config.total_grasps - progress.grasps)
@@ -324,6 +330,20 @@ class Trainer:
             self.writer.close()
             self.close()
         return self.run_dir
+
+    def _record_renderer(self, renderers: list[str]) -> None:
+        """Note what the workers render with (``renderers``, one per worker); warn where they disagree, or where a
+        resumed run's workers render with another renderer than its earlier training did."""
+        now, before = pool_renderer(renderers), self.renderer
+        tqdm.write(f"renderer: {now}" + (f" ({renderer_counts(renderers)})" if now == "mixed" else ""))
+        if now == "mixed":
+            tqdm.write("warning: the environment workers render with different renderers: the policy learns from "
+                       "two kinds of images, and no evaluation renderer matches them")  # fmt: skip
+        if before and before != now:
+            tqdm.write(f"warning: this run trained on {before} images until now, and its workers render with {now} "
+                       f"here: recorded as mixed; resume where {before} serves to keep the images alike")  # fmt: skip
+            now = "mixed"
+        self.renderer = now
 
     def _finished(self) -> bool:
         """The grasp budget is spent, or the training-time budget (``max_train_minutes``)."""
@@ -420,8 +440,9 @@ class Trainer:
         """Evaluate on held-out objects; write ``eval/eval_GRASPS.json`` (``final``: the run's last one)."""
         config = self.config
         started = time.perf_counter()
-        result = evaluate(self.agent, config.env, episodes or config.eval_episodes, "test", config.eval_workers,
-                          self.workers_factory).to_dict()  # fmt: skip
+        env = dataclasses.replace(config.env, renderer=renderer_request(self.renderer, config.env.renderer))
+        result = evaluate(self.agent, env, episodes or config.eval_episodes, "test", config.eval_workers,
+                          self.workers_factory, self.renderer, on_mismatch="warn").to_dict()  # fmt: skip
         elapsed = time.perf_counter() - started
         self.progress.eval_s += elapsed
         self.progress.wall_s += elapsed  # the round loop recomputes it from the start time; the same sum
@@ -495,6 +516,7 @@ class Trainer:
             "rng": self.rng.bit_generator.state,
             "replay": replay_name,
             "config": self.config.to_json(),
+            "renderer": self.renderer,
         }
         path = directory / f"checkpoint_{grasps:08d}.pt"
         write_atomically(path, lambda temporary: torch.save(state, temporary))

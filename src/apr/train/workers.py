@@ -70,6 +70,8 @@ def _serve(connection: Connection, env_id: str, env_kwargs: dict[str, Any]) -> N
                     connection.send(("ok", (observation, info)))
                 elif command == "step":
                     connection.send(("ok", env.step(payload)))
+                elif command == "renderer":
+                    connection.send(("ok", env.unwrapped.renderer_in_use()))
                 else:
                     raise ValueError(f"unknown command {command!r}")
             except Exception as error:  # a physics or env error: report it, then let the pool replace us
@@ -99,6 +101,10 @@ class Workers(Protocol):
 
     def describe(self) -> str:
         """Where the workers run, in one line."""
+        ...
+
+    def renderers(self) -> list[str]:
+        """The renderer each worker's environment uses, "egl" or "tiny" (worlds not built yet are built)."""
         ...
 
     def close(self) -> None: ...
@@ -178,6 +184,20 @@ class EnvWorkers:
     def describe(self) -> str:
         return f"{len(self)} environment processes on this machine"
 
+    def renderers(self) -> list[str]:
+        """The renderer each worker's environment uses (asked between episodes; a worker that fails to answer is
+        replaced, counted in ``failures``, and asked again)."""
+        for index in range(len(self)):
+            self._send(index, ("renderer", None))
+        answers: list[str] = []
+        for index in range(len(self)):
+            answer = self.receive(index)
+            while isinstance(answer, WorkerFailure):
+                self._send(index, ("renderer", None))
+                answer = self.receive(index)
+            answers.append(str(answer))
+        return answers
+
     def send_reset(self, index: int, seed: int) -> None:
         if self.recycle_every > 0 and self._workers[index].resets >= self.recycle_every:
             self._recycle(index)
@@ -246,3 +266,14 @@ class EnvWorkers:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def pool_renderer(renderers: list[str]) -> str:
+    """What a pool's environments render with: "egl" or "tiny" when they agree, "mixed" when they do not."""
+    found = set(renderers)
+    return found.pop() if len(found) == 1 else "mixed"
+
+
+def renderer_counts(renderers: list[str]) -> str:
+    """``renderers`` counted, e.g. "62 with egl, 2 with tiny"."""
+    return ", ".join(f"{renderers.count(name)} with {name}" for name in sorted(set(renderers)))
