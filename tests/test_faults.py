@@ -25,7 +25,7 @@ from apr.cli import main
 from apr.envs import rendering
 from apr.train import checkpoints, trainer
 from apr.train.checkpoints import CheckpointError, RunLock, RunLocked
-from apr.train.config import TrainConfig, preset
+from apr.train.config import PRESETS, TrainConfig, preset
 from apr.train.trainer import RunFinished, Trainer
 
 SRC = Path(__file__).resolve().parents[1] / "src"
@@ -317,6 +317,42 @@ def test_derived_model_fields_are_refused_not_dropped(tmp_path: Path, monkeypatc
     main([*base, "--model.gqn-anneal-updates", "5000", "--no-anneal-over-run"])
     assert started[-1].model.gqn_anneal_updates == 5000
     assert started[-1].resolved().model.gqn_anneal_updates == 5000  # an explicit value wins when it can
+
+
+def test_contradictory_env_flags_are_refused_by_name_and_a_presets_own_values_are_not(tmp_path: Path, monkeypatch):
+    started = []
+
+    class Recorder:  # stands in for the trainer: what would have trained
+        def __init__(self, config: TrainConfig, workers=None):
+            started.append(config)
+
+        def train(self) -> Path:
+            return tmp_path
+
+    monkeypatch.setattr(trainer, "Trainer", Recorder)
+    runs = tmp_path / "runs"
+    passive = ["train", "--preset", "cpu-4d", "--runs-dir", str(runs), "--env.env-id", "apr/PassiveGrasp-v0"]
+    for flag, value in (("--env.target", "learned"), ("--env.foveation", "logpolar")):
+        with pytest.raises(SystemExit) as refused:
+            main([*passive, flag, value])
+        message = str(refused.value)
+        assert message.startswith(f"apr train: error: {flag} {value} contradicts --env.env-id apr/PassiveGrasp-v0")
+        assert "\n" not in message
+    assert not started and not runs.exists()
+
+    main(passive)  # cpu-4d's own logpolar: the passive cameras are resized, and the run says so
+    assert started[-1].env.foveation == "logpolar" and started[-1].resolved().env.foveation == "resize"
+    for name in PRESETS:
+        assert preset(name).problems() == [], name
+
+
+def test_plot_of_a_folder_without_runs_is_one_line_and_writes_nothing(tmp_path: Path):
+    empty, out = tmp_path / "empty", tmp_path / "x.png"
+    empty.mkdir()
+    with pytest.raises(SystemExit) as refused:
+        main(["plot", str(empty), "--out", str(out)])
+    assert str(refused.value) == f"apr plot: error: {empty} is not a run folder (no config.json) and holds none"
+    assert not out.exists()
 
 
 def test_help_lists_train_and_its_presets(capsys):

@@ -13,7 +13,7 @@ import tyro
 
 from apr.commands import backends, checks
 from apr.model.config import ModelConfig
-from apr.train.config import DERIVED_MODEL_FIELDS, PRESETS, TrainConfig, flag, preset
+from apr.train.config import DERIVED_MODEL_FIELDS, PASSIVE_ENV_ID, PRESETS, TrainConfig, flag, preset
 
 PresetName = Literal[tuple(PRESETS)]  # type: ignore[valid-type]
 
@@ -77,6 +77,18 @@ def _from_cli(config: TrainConfig) -> TrainConfig:
     return TrainConfig(**values, model=model)
 
 
+def _contradicted(argv: list[str], config: TrainConfig) -> list[str]:
+    """Flags given in ``argv`` that the rest of ``config`` makes meaningless. Only what the user gave counts: a
+    passive run started from an active preset inherits its logpolar, which is no contradiction (the passive
+    cameras are resized whatever it says, and the run records resize: ``TrainConfig.resolved``)."""
+    found = []
+    if _given(argv, "env.foveation") and config.env.foveation == "logpolar" and config.env.env_id == PASSIVE_ENV_ID:
+        found.append(f"--env.foveation logpolar contradicts --env.env-id {PASSIVE_ENV_ID}: the passive model's "
+                     "static cameras are resized, with no log-polar warp; drop the flag, or use --env.env-id "
+                     "apr/ActiveGrasp-v0")  # fmt: skip
+    return found
+
+
 def train(argv: list[str]) -> None:
     """``apr train --preset NAME [--field value ...]`` or ``apr train --resume RUN_DIR [--field value ...]``."""
     from apr.train.trainer import RunFinished, Trainer
@@ -99,7 +111,8 @@ def train(argv: list[str]) -> None:
     if _given(argv, "model.gqn_anneal_updates") and config.anneal_over_run:
         checks.refuse("apr train", ["--model.gqn-anneal-updates is set from --total-grasps while --anneal-over-run "
                                     "is on; add --no-anneal-over-run to set it yourself"])  # fmt: skip
-    checks.refuse("apr train", [*config.problems(), *backends.workers_problems(config.backend)])
+    checks.refuse("apr train", [*_contradicted(argv, config), *config.problems(),
+                                *backends.workers_problems(config.backend)])  # fmt: skip
     workers = backends.workers_factory(config.backend, config.ray_address)
     try:
         if args.resume is not None:
