@@ -1,8 +1,9 @@
 """Shared fixtures of the environment tests.
 
-Every environment here uses ``renderer="tiny"``: pybullet's EGL plugin allows one EGL world per process, and
-the one test of that policy (``test_env_world.py::test_egl_one_world_per_process``) must find none open. Every
-environment made through these fixtures is closed at teardown.
+Every environment made here has the environments' default renderer, TinyRenderer, which any number of worlds
+of one process share; pybullet's EGL plugin allows one EGL world per process, and the tests of that policy
+(``test_env_world.py::test_egl_one_world_per_process``) must find none open. Every environment made through
+these fixtures is closed at teardown.
 """
 
 from __future__ import annotations
@@ -28,7 +29,6 @@ def _factory() -> tuple[MakeEnv, list[gymnasium.Env]]:
     made: list[gymnasium.Env] = []
 
     def make(env_id: str = ACTIVE, **kwargs) -> gymnasium.Env:
-        kwargs.setdefault("renderer", "tiny")
         env = gymnasium.make(env_id, **kwargs)
         made.append(env)
         return env
@@ -38,7 +38,7 @@ def _factory() -> tuple[MakeEnv, list[gymnasium.Env]]:
 
 @pytest.fixture
 def make_env() -> Iterator[MakeEnv]:
-    """``make_env(env_id=ACTIVE, **kwargs)``: ``gymnasium.make`` with ``renderer="tiny"``, closed at teardown."""
+    """``make_env(env_id=ACTIVE, **kwargs)``: ``gymnasium.make``, closed at teardown."""
     make, made = _factory()
     yield make
     for env in made:

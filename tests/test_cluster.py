@@ -32,7 +32,9 @@ submitit = pytest.importorskip("submitit", reason='the cluster extra is not inst
 
 from ray.cluster_utils import Cluster  # noqa: E402
 
+from apr.cluster.ray_workers import RayWorkers  # noqa: E402
 from apr.cluster.slurm_campaign import CampaignJob, run_campaign_slurm  # noqa: E402
+from apr.commands.backends import campaign_executor  # noqa: E402
 
 TINY_CAMPAIGN_RUN = dict(total_grasps=2, random_grasps=1, eval_episodes=1, eval_every_grasps=0,
                          checkpoint_every_grasps=1, image_every_grasps=0, log_every_grasps=1)  # fmt: skip
@@ -92,7 +94,7 @@ def local_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_a_ray_run_spreads_its_actors_over_both_nodes_and_gives_the_local_pools_numbers(two_nodes, local_run,
                                                                                        tmp_path, capsys):  # fmt: skip
-    trainer = Trainer(small_run(tmp_path, "ray", "ray"))
+    trainer = Trainer(small_run(tmp_path, "ray", "ray"), workers=RayWorkers())
     learn, nodes = trainer._learn, []
 
     def learn_and_look(steps: int) -> None:
@@ -107,15 +109,16 @@ def test_a_ray_run_spreads_its_actors_over_both_nodes_and_gives_the_local_pools_
     rows = read_rows(local_run)
     assert int(rows[-1]["updates"]) > 0, "the learner never ran: the comparison would prove nothing"
     assert read_rows(ray_run) == rows
-    ray_eval, local_eval = (json.loads((run / "eval" / "eval_00000004.json").read_text()) for run in (ray_run,
-                                                                                                     local_run))
+    ray_eval, local_eval = (
+        json.loads((run / "eval" / "eval_00000004.json").read_text()) for run in (ray_run, local_run)
+    )
     assert ray_eval["outcomes"] == local_eval["outcomes"]
     assert json.loads((ray_run / "config.json").read_text())["backend"] == "ray"
 
 
 def test_an_actor_killed_mid_round_is_restarted_and_the_run_finishes_counting_the_lost_episode(two_nodes,
                                                                                               tmp_path):  # fmt: skip
-    trainer = Trainer(small_run(tmp_path, "killed", "ray"))
+    trainer = Trainer(small_run(tmp_path, "killed", "ray"), workers=RayWorkers())
     killed = kill_worker_once_while_stepping(trainer, grasps=2, worker=1)
     run = trainer.train()
     rows = read_rows(run)
@@ -143,7 +146,7 @@ def test_an_actor_is_recycled_after_its_episodes_and_an_environment_error_costs_
 def test_the_campaign_trains_each_run_as_a_ray_task_and_builds_the_table_from_the_folders(two_nodes, tmp_path):
     out = tmp_path / "table1"
     args = Table1Args(seeds=1, presets=("smoke",), out=out, backend="ray", workers=1, gpus_per_run=0)
-    campaign.run(args, overrides=TINY_CAMPAIGN_RUN)
+    campaign.run(args, overrides=TINY_CAMPAIGN_RUN, executor=campaign_executor(args))
     run = out / "smoke__s0"
     final = json.loads((run / "eval" / "eval_00000002.json").read_text())
     assert final["final"] and final["episodes"] == 1
@@ -199,15 +202,16 @@ import sys
 sys.modules["ray"] = None  # as if not installed
 sys.modules["submitit"] = None
 import apr.cli, apr.train.trainer, apr.reproduce.campaign
-from apr.train.config import preset
-import dataclasses
-config = dataclasses.replace(preset("smoke"), backend="ray", workers=2)
-print("\\n".join(config.problems()))
+try:
+    apr.cli.main(["train", "--preset", "smoke", "--backend", "ray", "--workers", "2", "--runs-dir", sys.argv[1]])
+except SystemExit as refused:
+    print(refused)
 apr.cli.main(["reproduce", "table1", "--backend", "slurm", "--workers", "1", "--out", sys.argv[1]])
 """
     done = subprocess.run([sys.executable, "-c", code, str(tmp_path / "out")], capture_output=True, text=True)
     assert done.returncode != 0 and "Traceback" not in done.stderr
-    assert "--backend ray needs the 'ray' package" in done.stdout and 'pip install -e ".[cluster]"' in done.stdout
+    assert "apr train: error: --backend ray needs the 'ray' package" in done.stdout
+    assert 'pip install -e ".[cluster]"' in done.stdout
     assert "--backend slurm needs the 'submitit' package" in done.stderr
     assert not (tmp_path / "out").exists()
 
@@ -215,7 +219,7 @@ apr.cli.main(["reproduce", "table1", "--backend", "slurm", "--workers", "1", "--
 @pytest.mark.slow
 def test_a_node_lost_mid_round_costs_its_episode_and_its_actor_restarts_on_the_other_node(tmp_path: Path):
     with two_node_cluster(second_node_cpus=1) as (cluster, doomed):
-        trainer = Trainer(small_run(tmp_path, "node-lost", "ray"))
+        trainer = Trainer(small_run(tmp_path, "node-lost", "ray"), workers=RayWorkers())
         learn, removed, nodes = trainer._learn, [], []
 
         def remove_node_while_stepping(steps: int) -> None:

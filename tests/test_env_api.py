@@ -22,13 +22,14 @@ GRASP_HEIGHT = -0.115
 
 # ------------------------------------------------------------------------------------------------ env_checker
 # Every active (dof, target) combination and both passive dofs. The render and close checks (which make two
-# more environments each) depend on neither dof nor target: they run once per class.
+# more environments each) depend on neither dof nor target: they run once per class, on its defaults (6-DoF,
+# the environment's target, TinyRenderer), as a new user runs the checker: check_env(gym.make(ID).unwrapped).
 CHECK_ENV_CASES = [
-    pytest.param(ACTIVE, {"dof": 6, "target": "env"}, True, id="active-6dof-env"),
+    pytest.param(ACTIVE, {}, True, id="active-defaults"),
     pytest.param(ACTIVE, {"dof": 4, "target": "env", "foveation": "resize"}, False, id="active-4dof-env-resize"),
     pytest.param(ACTIVE, {"dof": 6, "target": "learned"}, False, id="active-6dof-learned"),
     pytest.param(ACTIVE, {"dof": 4, "target": "learned"}, False, id="active-4dof-learned"),
-    pytest.param(PASSIVE, {"dof": 6}, True, id="passive-6dof"),
+    pytest.param(PASSIVE, {}, True, id="passive-defaults"),
     pytest.param(PASSIVE, {"dof": 4}, False, id="passive-4dof"),
 ]
 
@@ -53,14 +54,15 @@ def _random_actions(seed: int, dof: int, count: int = 15) -> np.ndarray:
     return actions
 
 
-def test_two_envs_with_one_seed_give_identical_episodes(make_env) -> None:
-    first, second = make_env(ACTIVE, dof=4, target="env"), make_env(ACTIVE, dof=4, target="env")
+def test_two_default_envs_in_one_process_with_one_seed_give_identical_episodes(make_env) -> None:
+    first, second = make_env(ACTIVE), make_env(ACTIVE)  # both open at once, with every default
+    assert first.unwrapped.renderer_in_use() == second.unwrapped.renderer_in_use() == "tiny"
     obs_a, info_a = first.reset(seed=11)
     obs_b, info_b = second.reset(seed=11)
     assert_obs_equal(obs_a, obs_b, "reset")
     np.testing.assert_array_equal(info_a["fixation_point"], info_b["fixation_point"])
     done, steps = False, 0
-    for steps, action in enumerate(_random_actions(0, 4), start=1):
+    for steps, action in enumerate(_random_actions(0, 6), start=1):
         obs_a, reward_a, term_a, trunc_a, info_a = first.step(action)
         obs_b, reward_b, term_b, trunc_b, info_b = second.step(action)
         assert_obs_equal(obs_a, obs_b, f"step {steps}")
@@ -344,10 +346,24 @@ def test_render_rgb_array(make_env) -> None:
 
 
 # ---------------------------------------------------------------------------------------------- vectorised
+def test_a_sync_vector_env_of_default_envs_works_and_its_members_agree_for_one_seed(make_env) -> None:
+    envs = gymnasium.make_vec(ACTIVE, num_envs=2, vectorization_mode="sync")
+    try:
+        batch, _ = envs.reset(seed=[4, 4])
+        assert batch["images"].shape == (2, 3, 64, 64, 4)
+        lone, _ = make_env(ACTIVE).reset(seed=4)
+        for key in lone:
+            np.testing.assert_array_equal(batch[key][0], batch[key][1], err_msg=key)
+            np.testing.assert_array_equal(batch[key][0], lone[key], err_msg=key)
+        batch, reward, *_ = envs.step(np.tile(np.array([0.2, 0.0, -0.5, 0.1, 0.0, 0.0], np.float32), (2, 1)))
+        np.testing.assert_array_equal(batch["images"][0], batch["images"][1])
+        assert reward[0] == reward[1]
+    finally:
+        envs.close()
+
+
 def test_async_vector_env_steps_with_batched_dict_actions() -> None:
-    envs = gymnasium.vector.AsyncVectorEnv(
-        [lambda: gymnasium.make(ACTIVE, dof=4, target="learned", renderer="tiny")] * 2
-    )
+    envs = gymnasium.vector.AsyncVectorEnv([lambda: gymnasium.make(ACTIVE, dof=4, target="learned")] * 2)
     try:
         obs, info = envs.reset(seed=0)
         assert obs["images"].shape == (2, 3, 64, 64, 3) and obs["images"].dtype == np.uint8

@@ -25,7 +25,7 @@ from apr.cli import main
 from apr.envs import rendering
 from apr.train import checkpoints, trainer
 from apr.train.checkpoints import CheckpointError, RunLock, RunLocked
-from apr.train.config import TrainConfig, preset
+from apr.train.config import PRESETS, TrainConfig, preset
 from apr.train.trainer import RunFinished, Trainer
 
 SRC = Path(__file__).resolve().parents[1] / "src"
@@ -157,9 +157,7 @@ def test_no_intact_checkpoint_is_a_clear_error_listing_each_file(run_dir: Path):
     assert not (run_dir / "train.lock").exists()
 
 
-def test_a_writer_killed_between_temporary_file_and_rename_leaves_the_previous_checkpoint_usable(
-    run_dir: Path, capsys
-):
+def test_a_writer_killed_between_temporary_file_and_rename_leaves_the_previous_checkpoint_usable(run_dir: Path, capsys):
     """SIGKILL in the middle of a checkpoint: after the replay is renamed, before the checkpoint is."""
     writer = python(f"""
         import os, signal
@@ -309,7 +307,7 @@ def test_derived_model_fields_are_refused_not_dropped(tmp_path: Path, monkeypatc
         main([*base, "--model.gqn-anneal-updates", "5000"])
 
     class Recorder:
-        def __init__(self, config: TrainConfig):
+        def __init__(self, config: TrainConfig, workers=None):
             started.append(config)
 
         def train(self) -> Path:
@@ -319,6 +317,42 @@ def test_derived_model_fields_are_refused_not_dropped(tmp_path: Path, monkeypatc
     main([*base, "--model.gqn-anneal-updates", "5000", "--no-anneal-over-run"])
     assert started[-1].model.gqn_anneal_updates == 5000
     assert started[-1].resolved().model.gqn_anneal_updates == 5000  # an explicit value wins when it can
+
+
+def test_contradictory_env_flags_are_refused_by_name_and_a_presets_own_values_are_not(tmp_path: Path, monkeypatch):
+    started = []
+
+    class Recorder:  # stands in for the trainer: what would have trained
+        def __init__(self, config: TrainConfig, workers=None):
+            started.append(config)
+
+        def train(self) -> Path:
+            return tmp_path
+
+    monkeypatch.setattr(trainer, "Trainer", Recorder)
+    runs = tmp_path / "runs"
+    passive = ["train", "--preset", "cpu-4d", "--runs-dir", str(runs), "--env.env-id", "apr/PassiveGrasp-v0"]
+    for flag, value in (("--env.target", "learned"), ("--env.foveation", "logpolar")):
+        with pytest.raises(SystemExit) as refused:
+            main([*passive, flag, value])
+        message = str(refused.value)
+        assert message.startswith(f"apr train: error: {flag} {value} contradicts --env.env-id apr/PassiveGrasp-v0")
+        assert "\n" not in message
+    assert not started and not runs.exists()
+
+    main(passive)  # cpu-4d's own logpolar: the passive cameras are resized, and the run says so
+    assert started[-1].env.foveation == "logpolar" and started[-1].resolved().env.foveation == "resize"
+    for name in PRESETS:
+        assert preset(name).problems() == [], name
+
+
+def test_plot_of_a_folder_without_runs_is_one_line_and_writes_nothing(tmp_path: Path):
+    empty, out = tmp_path / "empty", tmp_path / "x.png"
+    empty.mkdir()
+    with pytest.raises(SystemExit) as refused:
+        main(["plot", str(empty), "--out", str(out)])
+    assert str(refused.value) == f"apr plot: error: {empty} is not a run folder (no config.json) and holds none"
+    assert not out.exists()
 
 
 def test_help_lists_train_and_its_presets(capsys):
@@ -374,7 +408,7 @@ VECTOR_SCRIPT = """
     import gymnasium, numpy as np
     import apr
 
-    make = lambda: gymnasium.make("apr/ActiveGrasp-v0", dof=4)  # the default renderer
+    make = lambda: gymnasium.make("apr/ActiveGrasp-v0", dof=4, renderer="auto")  # EGL where it loads
     if sys.argv[1] == "after-egl":  # this process renders with EGL before it forks
         env = make()
         env.reset(seed=0)
@@ -401,8 +435,8 @@ def run_script(script: str, *args: str, timeout: float = 240) -> subprocess.Comp
         pytest.fail(f"hung for {timeout} s: {error.stderr}")
 
 
-def test_async_vector_env_with_the_default_renderer_and_fork_resets_quietly_and_renders_as_one_env():
-    """The default renderer in gymnasium's AsyncVectorEnv with its default fork context: no hang, each sub-env
+def test_async_vector_env_with_the_auto_renderer_and_fork_resets_quietly_and_renders_as_one_env():
+    """renderer="auto" in gymnasium's AsyncVectorEnv with its default fork context: no hang, each sub-env
     renders as a lone environment does, and the console holds nothing of pybullet's (nor of its children)."""
     result = run_script(VECTOR_SCRIPT, "clean")
     assert result.returncode == 0, result.stderr
@@ -420,19 +454,20 @@ def test_a_fork_after_egl_fails_at_once_naming_the_fix():
     assert "context='spawn'" in result.stderr and "renderer='tiny'" in result.stderr
 
 
-def test_two_default_environments_in_one_process_see_the_same_images():
+def test_two_auto_environments_in_one_process_see_the_same_images():
+    """renderer="auto" never mixes renderers in a process: a second world while an EGL one is open is refused."""
     import gymnasium
 
-    first = gymnasium.make(ACTIVE, dof=4)
+    first = gymnasium.make(ACTIVE, dof=4, renderer="auto")
     try:
         observation, _ = first.reset(seed=3)
         if first.unwrapped.world.renderer != "egl":
-            pytest.skip("EGL does not load here; the default renderer is TinyRenderer for the whole process")
+            pytest.skip("EGL does not load here; auto is TinyRenderer for the whole process")
         with pytest.raises(RuntimeError, match="serves one world per process"):
-            gymnasium.make(ACTIVE, dof=4)  # it would render with TinyRenderer: refused, not mixed
+            gymnasium.make(ACTIVE, dof=4, renderer="auto")  # it would render with TinyRenderer: refused, not mixed
     finally:
         first.close()
-    second = gymnasium.make(ACTIVE, dof=4)
+    second = gymnasium.make(ACTIVE, dof=4, renderer="auto")
     try:
         second.reset(seed=5)
         again, _ = second.reset(seed=3)
@@ -442,7 +477,7 @@ def test_two_default_environments_in_one_process_see_the_same_images():
     finally:
         second.close()
     with pytest.raises(RuntimeError, match="serves one world per process") as refused:
-        gymnasium.vector.SyncVectorEnv([lambda: gymnasium.make(ACTIVE, dof=4)] * 2)
+        gymnasium.vector.SyncVectorEnv([lambda: gymnasium.make(ACTIVE, dof=4, renderer="auto")] * 2)
     refused.value.__traceback__ = None  # its frames hold the vector's first sub-env, which holds EGL
     del refused
     gc.collect()

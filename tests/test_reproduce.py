@@ -252,6 +252,30 @@ def test_gqn_figure_has_a_prediction_per_checkpoint_and_skips_a_model_without_ge
     assert figures.gqn_figure([ablation], [observation], "ablation") is None
 
 
+def test_pictures_render_with_the_policys_own_renderer_and_say_so_when_they_cannot(monkeypatch):
+    from apr.reproduce import policies
+
+    def snapshot(renderer: str, trained: bool = True) -> PolicySnapshot:
+        return PolicySnapshot(None, preset("smoke"), 5, "run x at 5 grasps", trained=trained, renderer=renderer)
+
+    assert policies.picture_renderer(snapshot("tiny"), "trained", "apr demo") == ("tiny", "")
+    renderer, warning = policies.picture_renderer(snapshot("egl"), "tiny", "apr demo")
+    assert renderer == "tiny" and "trained on egl images" in warning and "--renderer tiny was asked for" in warning
+    assert policies.picture_renderer(snapshot("", trained=False), "tiny", "apr demo") == ("tiny", "")
+    assert "is not recorded" in policies.picture_renderer(snapshot(""), "tiny", "apr demo")[1]
+
+    monkeypatch.setattr(policies, "resolve", lambda renderer: "tiny")  # a machine where EGL does not load
+    renderer, warning = policies.picture_renderer(snapshot("egl"), "trained", "apr demo")
+    assert renderer == "tiny" and "EGL plugin does not load here" in warning and "apt-get install" in warning
+
+    def no_egl(renderer: str) -> str:
+        raise RuntimeError("renderer='egl' was asked for but pybullet's EGL plugin did not load")
+
+    monkeypatch.setattr(policies, "resolve", no_egl)
+    with pytest.raises(SystemExit, match="apr demo: error: --renderer egl: renderer='egl' was asked for"):
+        policies.picture_renderer(snapshot("egl"), "egl", "apr demo")
+
+
 def test_demo_without_a_packaged_checkpoint_runs_an_untrained_policy_and_says_so(tmp_path: Path, capsys):
     result = demo.run(demo.DemoArgs(out=tmp_path / "demo", episodes=1, gif_episodes=1), packaged_dir=tmp_path)
 
@@ -281,7 +305,9 @@ def test_a_packaged_checkpoint_dropped_in_is_what_the_demo_runs_and_reports(run_
     for key, value in trained.agent.networks.state_dict().items():
         assert torch.equal(snapshot.agent.networks.state_dict()[key], value), key
     assert demo.untrained_notice(snapshot, packaged) == ""
+    assert written["renderer"] == trained.renderer == snapshot.renderer and trained.renderer in ("egl", "tiny")
     result = demo.run(demo.DemoArgs(out=tmp_path / "demo", episodes=1, gif_episodes=1), packaged_dir=packaged)
+    assert result.renderer == trained.renderer and result.renderer_warning == ""  # the policy's own images
     report = result.report.read_text()
     assert "UNTRAINED" not in report
     assert f"**Policy:** packaged checkpoint {manifest.stem} (smoke, 2 grasps)" in report

@@ -140,6 +140,43 @@ def test_a_replay_that_does_not_fit_is_refused(monkeypatch, tmp_path: Path):
         trainer.Trainer(config)
 
 
+def test_a_trainer_takes_only_the_workers_of_its_backend_and_a_campaign_only_its_executor(tmp_path: Path):
+    """The cluster layer plugs in from above: without the Ray factory a Ray run is refused by name, before any
+    folder exists; so is a cluster campaign without its executor."""
+    from apr.reproduce import campaign
+    from apr.train.trainer import Trainer
+
+    config = dataclasses.replace(preset("smoke"), backend="ray", workers=2, runs_dir=tmp_path, run_name="ray")
+    with pytest.raises(ConfigError, match="--backend ray: this trainer was given local workers"):
+        Trainer(config)
+
+    class RayLike:
+        backend = "ray"
+
+    with pytest.raises(ConfigError, match="--backend local: this trainer was given ray workers"):
+        Trainer(dataclasses.replace(config, backend="local"), workers=RayLike())
+    with pytest.raises(SystemExit, match="--backend slurm needs its campaign executor"):
+        campaign.run(campaign.Table1Args(seeds=1, presets=("smoke",), out=tmp_path / "t", backend="slurm", workers=1))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_trainer_records_what_its_workers_render_with_and_warns_when_it_changes(tmp_path: Path, capsys):
+    from apr.train.trainer import Trainer
+
+    run = Trainer(dataclasses.replace(preset("smoke"), runs_dir=tmp_path, run_name="renderers"))
+    try:
+        run._record_renderer(["egl", "egl"])
+        assert run.renderer == "egl" and "renderer: egl" in capsys.readouterr().out
+        run._record_renderer(["tiny", "tiny"])  # a resume where EGL no longer loads
+        assert run.renderer == "mixed" and "trained on egl images until now" in capsys.readouterr().out
+        run.renderer = ""  # a checkpoint from before the renderer was recorded
+        run._record_renderer(["egl", "tiny"])  # workers that disagree (a Ray cluster, some nodes without EGL)
+        out = capsys.readouterr().out
+        assert run.renderer == "mixed" and "1 with egl, 1 with tiny" in out and "two kinds of images" in out
+    finally:
+        run.close()
+
+
 def test_a_killed_worker_is_replaced_and_the_episode_reported_lost():
     kwargs = {"dof": 4, "target": "env", "renderer": "tiny"}
     with EnvWorkers(1, "apr/ActiveGrasp-v0", kwargs) as workers:

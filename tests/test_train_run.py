@@ -58,6 +58,29 @@ def uninterrupted(tmp_path_factory) -> Path:
     return Trainer(tiny_run(tmp_path_factory.mktemp("runs"), "uninterrupted")).train()
 
 
+def test_a_run_records_its_renderer_and_apr_eval_refuses_images_of_another(uninterrupted: Path, tmp_path: Path,
+                                                                            capsys):  # fmt: skip
+    """The renderer the workers used is in every checkpoint and evaluation; apr eval checks it before any episode
+    (a refusal naming the way out), and an explicit --renderer evaluates anyway, with a warning."""
+    import torch
+
+    from apr.train.checkpoints import read_checkpoint
+
+    state = read_checkpoint(latest_checkpoint(uninterrupted))
+    assert state["renderer"] == "tiny"
+    assert json.loads(sorted((uninterrupted / "eval").glob("eval_*.json"))[-1].read_text())["renderer"] == "tiny"
+    claimed = tmp_path / "checkpoint_00000004.pt"
+    torch.save({**state, "renderer": "egl"}, claimed)  # as if trained on EGL images
+    with pytest.raises(SystemExit, match="trained on egl images, but these environments render with tiny") as refusal:
+        main(["eval", str(claimed), "--episodes", "1"])
+    assert "--renderer tiny" in str(refusal.value) and "apt-get install" in str(refusal.value)
+    out = tmp_path / "eval.json"
+    main(["eval", str(claimed), "--episodes", "1", "--renderer", "tiny", "--json", str(out)])
+    assert "warning: the policy was trained on egl images" in capsys.readouterr().out
+    result = json.loads(out.read_text())
+    assert result["episodes"] == 1 and result["renderer"] == "tiny" and result["trained_renderer"] == "egl"
+
+
 def test_same_seed_gives_identical_metrics(uninterrupted: Path, tmp_path: Path):
     again = Trainer(tiny_run(tmp_path, "again")).train()
     rows = read_metrics(uninterrupted)

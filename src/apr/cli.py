@@ -35,11 +35,12 @@ from apr.bench.backends import BackendsBenchArgs
 from apr.bench.env import EnvBenchArgs
 from apr.bench.learner import LearnerBenchArgs
 from apr.bench.learning import LearningBenchArgs
+from apr.commands import backends as backends_command
 from apr.commands import render as render_command
 from apr.commands import train as train_command
 from apr.commands.render import RenderArgs
 from apr.commands.train import EvalArgs, PresetsArgs
-from apr.reproduce import campaign, demo, figures, plot, policies
+from apr.reproduce import demo, figures, plot, policies
 from apr.reproduce.campaign import Table1Args
 from apr.reproduce.demo import DemoArgs
 from apr.reproduce.figures import FiguresArgs
@@ -94,7 +95,7 @@ HANDLERS = {
     EvalArgs: train_command.evaluate,
     PresetsArgs: train_command.list_presets,
     RenderArgs: render_command.run,
-    Table1Args: campaign.run,
+    Table1Args: backends_command.table1,
     PackageArgs: policies.run_package,
     PlotArgs: plot.run,
     FiguresArgs: figures.run,

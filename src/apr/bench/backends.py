@@ -50,6 +50,7 @@ class BackendsBenchArgs:
 def run(args: BackendsBenchArgs) -> dict:
     from apr.cluster import missing
     from apr.commands import checks
+    from apr.commands.backends import workers_factory
     from apr.train.config import preset
 
     config = preset(args.preset)  # validates the name before any work
@@ -94,7 +95,8 @@ def run(args: BackendsBenchArgs) -> dict:
         if not args.report_only:
             shutil.rmtree(args.out / backend, ignore_errors=True)
             print(f"--- {backend}: {args.grasps} grasps, {config.workers} workers")
-            Trainer(dataclasses.replace(config, backend=backend, run_name=backend)).train()
+            workers = workers_factory(backend, config.ray_address)
+            Trainer(dataclasses.replace(config, backend=backend, run_name=backend), workers=workers).train()
         rows[backend] = read_metrics(args.out / backend)
         if not rows[backend]:
             raise SystemExit(f"{args.out / backend} holds no run to report: run apr bench backends without "
@@ -136,8 +138,10 @@ def _print_report(figures: dict) -> None:
     print(f"\nmachine: {figures['machine']}")
     if "env_steps_per_s" in figures:
         scaling = figures["env_steps_per_s"]
-        print("environments alone:\n| workers | local env steps/s | Ray env steps/s | Ray / local |\n"
-              "| --- | --- | --- | --- |")
+        print(
+            "environments alone:\n| workers | local env steps/s | Ray env steps/s | Ray / local |\n"
+            "| --- | --- | --- | --- |"
+        )
         for n, local in scaling["local"].items():
             ray = scaling["ray"][n]
             print(f"| {n} | {local:.2f} | {ray:.2f} | {ray / local:.3f} |")
@@ -160,12 +164,13 @@ def _env_steps_per_s(config, backend: str, workers: int, episodes: int) -> float
 
     import numpy as np
 
+    from apr.commands.backends import workers_factory
     from apr.train.rollout import episode_seed, random_policy, run_round
-    from apr.train.workers import open_workers
 
     env = config.env
     policy = random_policy(env.dof, np.random.default_rng(0))
-    with open_workers(workers, env.env_id, env.make_kwargs("train"), backend, config.ray_address) as pool:
+    open_workers = workers_factory(backend, config.ray_address)
+    with open_workers(workers, env.env_id, env.make_kwargs("train")) as pool:
         steps, started = 0, time.perf_counter()
         for first in range(0, episodes, workers):
             seeds = [episode_seed(0, k) for k in range(first, min(first + workers, episodes))]

@@ -243,6 +243,10 @@ def _summary(args: LearningBenchArgs, curve: list[dict], baselines: dict[str, di
         lines.append(f"| {t['run']} | {t['grasps']} | {t['updates']} | {t['train_minutes']:.1f} | "
                      f"{t['eval_minutes']:.1f} | {t['grasps_per_min']:.1f} | {t['updates_per_s']:.2f} | "
                      f"{t['env_share']:.0%} | {t['learner_share']:.0%} | {t['act_share']:.0%} |")  # fmt: skip
-    lines += ["", "The learner updates while the workers simulate, so its share overlaps the env's: *env and "
-              "waiting* is the rest of the training time (the main process waiting for the workers).", ""]
+    lines += [
+        "",
+        "The learner updates while the workers simulate, so its share overlaps the env's: *env and "
+        "waiting* is the rest of the training time (the main process waiting for the workers).",
+        "",
+    ]
     return "\n".join(lines)

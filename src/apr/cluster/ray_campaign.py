@@ -14,7 +14,7 @@ import dataclasses
 from collections.abc import Sequence
 
 from apr.cluster import require
-from apr.cluster.ray_workers import connect
+from apr.cluster.ray_workers import RayWorkers, connect
 from apr.reproduce.campaign import PlannedRun, train_replanned_logged
 
 
@@ -39,7 +39,10 @@ def run_campaign_ray(plans: Sequence[PlannedRun], address: str = "", gpus_per_ru
             strategy = PlacementGroupSchedulingStrategy(group, placement_group_bundle_index=0,
                                                         placement_group_capture_child_tasks=True)  # fmt: skip
             config = dataclasses.replace(plan.config, backend="ray", ray_address="")
-            reference = train.options(scheduling_strategy=strategy).remote(dataclasses.replace(plan, config=config))
+            task = train.options(scheduling_strategy=strategy)
+            reference = task.remote(
+                dataclasses.replace(plan, config=config), RayWorkers()
+            )  # the task is connected to Ray
             running[reference] = (plan, group)
             print(f"{plan.run_dir}: {plan.status}, submitted to Ray ({plan.config.workers} environment actors, "
                   f"{gpus_per_run:g} GPU; log: train.log)")  # fmt: skip

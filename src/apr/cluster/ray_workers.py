@@ -12,6 +12,9 @@ the same numbers on either (``docs/decisions.md``, "Ray actors step; they do not
 A dead actor (its process or its node) is restarted by Ray (``max_restarts``), an actor whose environment
 raised is restarted the same way, and ``receive`` reports the lost episode as the local pool does. Actors are
 replaced by fresh ones every ``RECYCLE_EVERY_RESETS`` episodes.
+
+The trainer does not know Ray: its caller passes :class:`RayWorkers` (``Trainer(config, workers=RayWorkers(
+address))``; ``apr train --backend ray`` does), as it would pass any other :class:`apr.train.workers.WorkersFactory`.
 """
 
 from __future__ import annotations
@@ -27,7 +30,14 @@ from typing import Any
 import gymnasium as gym
 
 from apr.cluster import require
-from apr.train.workers import MAX_FAILURES_IN_A_ROW, RECYCLE_EVERY_RESETS, StepResult, WorkerFailure
+from apr.train.workers import (
+    MAX_FAILURES_IN_A_ROW,
+    RECYCLE_EVERY_RESETS,
+    StepResult,
+    WorkerFailure,
+    Workers,
+    renderer_counts,
+)
 
 READY_TIMEOUT_S = 300.0
 """How long a started or restarted actor may take to answer (a node may have to start one first)."""
@@ -59,9 +69,8 @@ class EnvActor:
         load, and the driver should say so (this actor's warnings stay in Ray's logs)."""
         import ray
 
-        world = self.env.unwrapped.world
-        world.build()
-        return ray.get_runtime_context().get_node_id(), ray.util.get_node_ip_address(), os.getpid(), world.renderer
+        renderer = self.env.unwrapped.renderer_in_use()
+        return ray.get_runtime_context().get_node_id(), ray.util.get_node_ip_address(), os.getpid(), renderer
 
     def reset(self, seed: int) -> tuple[dict, dict]:
         return self.env.reset(seed=seed)
@@ -132,9 +141,12 @@ class RayEnvWorkers:
     def describe(self) -> str:
         """Where the actors run and what renders their views, in one line."""
         nodes = len(set(self.node_ids()))
-        renderers = sorted({slot.renderer for slot in self._slots})
-        counts = ", ".join(f"{sum(slot.renderer == r for slot in self._slots)} with {r}" for r in renderers)
+        counts = renderer_counts(self.renderers())
         return f"{len(self)} environment actors on {nodes} Ray node{'s' * (nodes != 1)} (renderer: {counts})"
+
+    def renderers(self) -> list[str]:
+        """The renderer each actor's environment uses (known since it answered first)."""
+        return [slot.renderer for slot in self._slots]
 
     def on_this_machine(self) -> int:
         """Actors on this machine's IP address: they share its cores with the learner."""
@@ -212,3 +224,18 @@ class RayEnvWorkers:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+@dataclass(frozen=True)
+class RayWorkers:
+    """Opens :class:`RayEnvWorkers` on the Ray cluster at ``address`` (see :func:`connect`): the
+    :class:`apr.train.workers.WorkersFactory` of ``--backend ray``. Training pools reserve one CPU per actor,
+    evaluation pools none (the training actors wait while they run)."""
+
+    address: str = ""
+    backend = "ray"
+
+    def __call__(
+        self, num_workers: int, env_id: str, env_kwargs: dict[str, Any], *, evaluation: bool = False
+    ) -> Workers:
+        return RayEnvWorkers(num_workers, env_id, env_kwargs, self.address, cpus_per_worker=0.0 if evaluation else 1.0)

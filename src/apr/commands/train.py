@@ -11,9 +11,9 @@ from typing import Annotated, Literal
 
 import tyro
 
-from apr.commands import checks
+from apr.commands import backends, checks
 from apr.model.config import ModelConfig
-from apr.train.config import DERIVED_MODEL_FIELDS, PRESETS, TrainConfig, flag, preset
+from apr.train.config import DERIVED_MODEL_FIELDS, PASSIVE_ENV_ID, PRESETS, TrainConfig, flag, preset
 
 PresetName = Literal[tuple(PRESETS)]  # type: ignore[valid-type]
 
@@ -77,6 +77,18 @@ def _from_cli(config: TrainConfig) -> TrainConfig:
     return TrainConfig(**values, model=model)
 
 
+def _contradicted(argv: list[str], config: TrainConfig) -> list[str]:
+    """Flags given in ``argv`` that the rest of ``config`` makes meaningless. Only what the user gave counts: a
+    passive run started from an active preset inherits its logpolar, which is no contradiction (the passive
+    cameras are resized whatever it says, and the run records resize: ``TrainConfig.resolved``)."""
+    found = []
+    if _given(argv, "env.foveation") and config.env.foveation == "logpolar" and config.env.env_id == PASSIVE_ENV_ID:
+        found.append(f"--env.foveation logpolar contradicts --env.env-id {PASSIVE_ENV_ID}: the passive model's "
+                     "static cameras are resized, with no log-polar warp; drop the flag, or use --env.env-id "
+                     "apr/ActiveGrasp-v0")  # fmt: skip
+    return found
+
+
 def train(argv: list[str]) -> None:
     """``apr train --preset NAME [--field value ...]`` or ``apr train --resume RUN_DIR [--field value ...]``."""
     from apr.train.trainer import RunFinished, Trainer
@@ -99,8 +111,14 @@ def train(argv: list[str]) -> None:
     if _given(argv, "model.gqn_anneal_updates") and config.anneal_over_run:
         checks.refuse("apr train", ["--model.gqn-anneal-updates is set from --total-grasps while --anneal-over-run "
                                     "is on; add --no-anneal-over-run to set it yourself"])  # fmt: skip
+    checks.refuse("apr train", [*_contradicted(argv, config), *config.problems(),
+                                *backends.workers_problems(config.backend)])  # fmt: skip
+    workers = backends.workers_factory(config.backend, config.ray_address)
     try:
-        trainer = Trainer.resume(args.resume, config) if args.resume is not None else Trainer(config)
+        if args.resume is not None:
+            trainer = Trainer.resume(args.resume, config, workers=workers)
+        else:
+            trainer = Trainer(config, workers=workers)
     except RunFinished as finished:
         print(finished)
         return
@@ -122,6 +140,9 @@ class EvalArgs:
     """Write the result (rate, 95% interval, per-episode outcomes) to this JSON file."""
     workers: int = 0
     """Environment processes; 0 = the run's number of workers."""
+    renderer: Literal["trained", "auto", "egl", "tiny"] = "trained"
+    """trained: the renderer the checkpoint's policy was trained with (refused where it cannot serve here); auto,
+    egl or tiny: that one, with a warning when the policy was trained on the other (its images differ)."""
 
 
 def eval_checkpoint(path: Path) -> tuple[Path, dict]:
@@ -159,7 +180,9 @@ def eval_checkpoint(path: Path) -> tuple[Path, dict]:
 
 
 def evaluate(args: EvalArgs) -> None:
+    from apr.envs.rendering import EGL_INSTALL
     from apr.model.agent import APRAgent
+    from apr.train.evaluation import RendererMismatch, renderer_request
     from apr.train.evaluation import evaluate as run_evaluation
 
     checks.refuse("apr eval", [
@@ -169,14 +192,28 @@ def evaluate(args: EvalArgs) -> None:
     ])  # fmt: skip
     checkpoint, state = eval_checkpoint(args.path)
     config = TrainConfig.from_json(state["config"])
+    trained = state.get("renderer", "")
+    if not trained:
+        print(f"{checkpoint.name} does not record the renderer it was trained with (written before apr recorded "
+              f"it): evaluating with the run's setting, renderer={config.env.renderer!r}, unchecked")  # fmt: skip
+    asked = renderer_request(trained, config.env.renderer) if args.renderer == "trained" else args.renderer
+    env = dataclasses.replace(config.env, renderer=asked)
     agent = APRAgent(config.model)
     agent.load_state_dict(state["agent"])
-    result = run_evaluation(agent, config.env, args.episodes, args.split, args.workers or config.workers)
+    mismatch = "refuse" if args.renderer == "trained" else "warn"
+    try:
+        result = run_evaluation(agent, env, args.episodes, args.split, args.workers or config.workers,
+                                trained_renderer=trained, on_mismatch=mismatch)  # fmt: skip
+    except RendererMismatch as refused:
+        where = EGL_INSTALL if refused.trained == "egl" else f"evaluate where {refused.trained} serves"
+        raise SystemExit(f"apr eval: error: {refused}. To measure the policy on its own images, {where}; or give "
+                         f"--renderer {refused.actual} to evaluate it on these anyway") from None  # fmt: skip
     summary = (f"{checkpoint}: {result.success_rate:.1%} success on {result.episodes} {args.split} episodes "
-               f"(95% CI {result.ci_low:.1%}-{result.ci_high:.1%})")  # fmt: skip
+               f"(95% CI {result.ci_low:.1%}-{result.ci_high:.1%}; renderer {result.renderer})")  # fmt: skip
     print(summary)
     if args.json:
-        payload = {**result.to_dict(), "checkpoint": str(checkpoint), "grasps": state["progress"]["grasps"]}
+        payload = {**result.to_dict(), "checkpoint": str(checkpoint), "grasps": state["progress"]["grasps"],
+                   "trained_renderer": trained}  # fmt: skip
         args.json.write_text(json.dumps(payload, indent=2))
 
 

@@ -119,6 +119,12 @@ class GraspEnv(gym.Env):
     def close(self) -> None:
         self.world.close()
 
+    def renderer_in_use(self) -> str:
+        """The renderer this environment's images come from, "egl" or "tiny" (with ``renderer="auto"``, what it
+        resolved to); builds the world if it was not built yet."""
+        self.world.build()
+        return self.world.renderer
+
     # --------------------------------------------------------------------------------------------- helpers
     def _render_views(self) -> tuple[list[np.ndarray], list[np.ndarray | None], np.ndarray]:
         """The step's three raw RGB renders, their body-id masks (or None), and viewpoints (3, 6)."""
@@ -181,14 +187,17 @@ class ActiveGraspEnv(GraspEnv):
 
     ## Arguments
     ``gymnasium.make("apr/ActiveGrasp-v0", dof=6, target="env", foveation="logpolar", split="train",
-    renderer="auto")``
+    renderer="tiny")``
 
     - ``dof``: 6 (dx, dy, dz, da, db, dc) or 4 (dx, dy, dz, da; the gripper points down).
     - ``target``: "env" (the environment picks a target object and fixates it; its mask is a 4th channel) or
       "learned" (the agent picks the fixation point: see Episode structure).
     - ``foveation``: "logpolar" or "resize" (the "w/o log-polar" ablation).
     - ``split``: "train" (at most 5 of the 900 training objects) or "test" (exactly 5 of the 100 held out).
-    - ``renderer``: "auto" (EGL if pybullet's plugin loads, else TinyRenderer), "egl" or "tiny".
+    - ``renderer``: "tiny" (pybullet's TinyRenderer, on the CPU; any number of environments in one process),
+      "egl" (pybullet's EGL plugin: about 1.5 times the steps per second on a CPU, through Mesa's llvmpipe; one
+      EGL environment per process) or "auto" (EGL if its plugin loads, else TinyRenderer). The two renderers' images
+      differ: a policy must be evaluated on the renderer it was trained with.
     - ``reach_scale``: reach reward per metre of progress toward the fixation point (default 1.0).
 
     ## Action Space
@@ -233,7 +242,7 @@ class ActiveGraspEnv(GraspEnv):
     """
 
     def __init__(self, dof: int = 6, target: str = "env", foveation: str = "logpolar", split: str = "train",
-                 renderer: str = "auto", render_mode: str | None = None,
+                 renderer: str = "tiny", render_mode: str | None = None,
                  reach_scale: float = REWARD.reach_scale):  # fmt: skip
         super().__init__(dof=dof, target=target, foveation=foveation, split=split, renderer=renderer,
                          render_mode=render_mode, with_head=True, reach_scale=reach_scale)  # fmt: skip
@@ -258,7 +267,7 @@ class PassiveGraspEnv(GraspEnv):
     attention to any object. Renders are 256x256 resized to 64x64 (no log-polar warp).
 
     ## Arguments
-    ``gymnasium.make("apr/PassiveGrasp-v0", dof=6, split="train", renderer="auto")``, as for the active env.
+    ``gymnasium.make("apr/PassiveGrasp-v0", dof=6, split="train", renderer="tiny")``, as for the active env.
 
     ## Action Space
     ``Box(-1, 1, (dof,), float32)``, as for ``apr/ActiveGrasp-v0`` with ``target="env"``.
@@ -273,7 +282,7 @@ class PassiveGraspEnv(GraspEnv):
     lifting the target; terminated by a grasp attempt, truncated after 15 steps.
     """
 
-    def __init__(self, dof: int = 6, split: str = "train", renderer: str = "auto",
+    def __init__(self, dof: int = 6, split: str = "train", renderer: str = "tiny",
                  render_mode: str | None = None, reach_scale: float = REWARD.reach_scale):  # fmt: skip
         super().__init__(dof=dof, target="env", foveation="resize", split=split, renderer=renderer,
                          render_mode=render_mode, with_head=False, reach_scale=reach_scale)  # fmt: skip

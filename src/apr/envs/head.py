@@ -92,12 +92,10 @@ class Head:
         self._set_joints(np.array(self.spec.rest_joint_positions))  # the same start: the solution is history-free
         solution = np.zeros(6)
         for _ in range(self.spec.ik_iterations):
-            solution = np.array(
-                self.client.calculateInverseKinematics(
-                    self.uid, self.spec.camera_link, flange, orientation, maxNumIterations=100,
-                    residualThreshold=1e-5,
-                )  # fmt: skip
+            angles = self.client.calculateInverseKinematics(
+                self.uid, self.spec.camera_link, flange, orientation, maxNumIterations=100, residualThreshold=1e-5
             )
+            solution = np.array(angles)
             self._set_joints(solution)
         return solution
 

@@ -1,7 +1,10 @@
-"""Renderer choice and cameras: pybullet's EGL plugin when it loads, TinyRenderer otherwise.
+"""Renderer choice and cameras: pybullet's TinyRenderer, or its EGL plugin.
 
 EGL renders on the GPU where there is one, or through Mesa's llvmpipe on a CPU machine (there, the
-environments step 1.56 times as fast as with TinyRenderer: docs/benchmarks.md).
+environments step 1.56 times as fast as with TinyRenderer: docs/benchmarks.md). The environments' default is
+``"tiny"``, which any number of worlds of one process share (a Gymnasium user's ``check_env``, ``SyncVectorEnv``
+and two environments in a notebook work as with any environment); the trainer's workers, each a process with
+one environment, ask for ``"auto"``, and the run records what it resolved to.
 
 **One renderer per process.** pybullet's EGL plugin serves one physics client per process (its GL context and
 renderer state are process-wide: a second client's images take the first one's shadow maps, and disconnecting
@@ -35,6 +38,8 @@ from apr.quiet import quiet_c_output
 RENDERERS = ("auto", "egl", "tiny")
 ONE_PROCESS_EACH = "gymnasium.vector.AsyncVectorEnv(env_fns, context='spawn')"
 """How to give every environment its own process (and its own EGL)."""
+EGL_INSTALL = "install Mesa's EGL on a CPU machine (Debian: apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri)"
+"""How to make pybullet's EGL plugin load where it does not."""
 
 
 @dataclass
@@ -125,11 +130,34 @@ def _unavailable(renderer: str, why: str) -> str:
     """EGL cannot serve: raise for "egl"; for "auto", TinyRenderer from now on in this process."""
     if renderer == "egl":
         raise RuntimeError(
-            f"renderer='egl' was asked for but {why}. On a CPU machine install Mesa's EGL (Debian: apt-get "
-            "install libegl1 libegl-mesa0 libgl1-mesa-dri), or use renderer='tiny'."
+            f"renderer='egl' was asked for but {why}. To render with EGL, {EGL_INSTALL}; or use renderer='tiny'."
         )
     _process().auto = "tiny"
     return "tiny"
+
+
+class _Probe:
+    """Stands in for a world in :func:`resolve` (weakly referenced while it holds EGL)."""
+
+
+def resolve(renderer: str) -> str:
+    """What a world of this process asking for ``renderer`` gets now, "egl" or "tiny". For "auto" and "egl" it
+    loads pybullet's EGL plugin into a throwaway client to find out (so "auto" is settled for this process, and
+    a process forked from this one afterwards refuses EGL); raises where :func:`claim_renderer` would."""
+    if renderer not in RENDERERS:
+        raise ValueError(f"renderer must be one of {RENDERERS}, got {renderer!r}")
+    if renderer == "tiny":
+        return "tiny"
+    probe = _Probe()
+    with quiet_c_output():
+        client = BulletClient(connection_mode=p.DIRECT)
+    try:
+        chosen = claim_renderer(probe, renderer)
+        if chosen == "egl" and not load_egl(probe, client, renderer):
+            chosen = "tiny"
+        return chosen
+    finally:
+        release(probe, client)
 
 
 def release(world: object, client: BulletClient) -> None:

@@ -82,4 +82,3 @@ class GraspTask:
             near = np.linalg.norm(tip_at_grasp - fixation_point) <= REWARD.fixation_radius
             success = bool(lifted) and bool(near)
         return GraspOutcome(lifted=lifted, success=success)
-

@@ -32,11 +32,12 @@ class GraspWorld:
     unusable EGL fails at construction.
 
     Args:
-        renderer: "auto" (EGL if its plugin loads, else TinyRenderer; one renderer per process), "egl" or "tiny".
+        renderer: "tiny" (any number of worlds per process), "egl" (one EGL world per process) or "auto" (EGL if
+            its plugin loads, else TinyRenderer; never both in one process).
         with_head: load the xArm6 head (the active model); the passive model has none.
     """
 
-    def __init__(self, renderer: str = "auto", with_head: bool = True):
+    def __init__(self, renderer: str = "tiny", with_head: bool = True):
         with quiet_c_output():  # pybullet prints argv[0] on connect
             self.client: BulletClient | None = BulletClient(connection_mode=p.DIRECT)
         self.renderer = claim_renderer(self, renderer)
@@ -216,9 +217,7 @@ class GraspWorld:
     def render(self, camera: Camera, segmentation: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
         """RGB (uint8, (256, 256, 3)) and, when asked, body ids (int32, (256, 256)) seen by ``camera``."""
         self.build()
-        return render(
-            self.client, camera, CAMERA.render_size, self.renderer, CAMERA.near, CAMERA.far, segmentation
-        )
+        return render(self.client, camera, CAMERA.render_size, self.renderer, CAMERA.near, CAMERA.far, segmentation)
 
 
 def passive_cameras() -> list[Camera]:

@@ -4,9 +4,11 @@ Runs are named ``PRESET__sSEED`` under the output folder, so the command is resu
 with an evaluation at or beyond the grasp budget) is skipped, an unfinished one continues from its latest
 checkpoint (``Trainer.resume``), and a folder without a checkpoint starts over. ``--parallel K`` trains K runs
 at once, each in its own process (each run also has its environment worker processes); their output goes to
-``RUN/train.log``. ``--backend ray`` trains each run as a task of a Ray cluster, with its environment workers
-as Ray actors (:mod:`apr.cluster.ray_campaign`); ``--backend slurm`` as a task of a Slurm job array, through
-submitit (:mod:`apr.cluster.slurm_campaign`). Either way the table is built from the run folders, as here.
+``RUN/train.log``. Where the runs train is the executor's to say (:data:`CampaignExecutor`): this module's
+:func:`run_campaign` by default; the ``apr`` command passes the cluster layer's for ``--backend ray`` (each run a
+task of a Ray cluster, its environment workers Ray actors: ``apr.cluster.ray_campaign``) and ``--backend slurm``
+(each run a task of a Slurm job array, through submitit: ``apr.cluster.slurm_campaign``). This module never
+imports the cluster layer. Either way the table is built from the run folders, as here.
 """
 
 from __future__ import annotations
@@ -14,10 +16,10 @@ from __future__ import annotations
 import dataclasses
 import multiprocessing
 import os
-import shutil
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any, Literal
 
@@ -28,6 +30,7 @@ from apr.model.config import ModelConfig
 from apr.reproduce.runs import final_eval
 from apr.reproduce.table import PAPER_PRESETS, write_table1
 from apr.train.config import PRESETS, TrainConfig, preset
+from apr.train.workers import WorkersFactory
 
 RunStatus = Literal["done", "resume", "new", "restart"]
 
@@ -137,39 +140,49 @@ def plan_runs(
     return plans
 
 
-def train_planned(plan: PlannedRun, torch_threads: int = 0) -> Path:
-    """Train one planned run to its budget (start, resume or restart it); return its folder."""
+CampaignExecutor = Callable[[Sequence[PlannedRun]], list[tuple[PlannedRun, int]]]
+"""Trains the runs of a campaign that are not done and returns (run, exit code) for each one it trained: where
+the runs train (this machine, a Ray cluster, a Slurm job array). The caller chooses it (:func:`run`)."""
+
+
+def train_planned(plan: PlannedRun, torch_threads: int = 0, workers: WorkersFactory | None = None) -> Path:
+    """Train one planned run to its budget (start, resume or restart it); return its folder. ``workers`` opens
+    its environment workers (default: local processes) and must serve ``plan.config.backend``; a resumed run
+    trains where the plan says (``backend`` and ``ray_address`` may change on resume)."""
     from apr.train.trainer import Trainer
 
     if torch_threads > 0:
         torch.set_num_threads(torch_threads)
     if plan.status == "resume":
         saved = Trainer.saved_config(plan.run_dir)
-        return Trainer.resume(plan.run_dir, dataclasses.replace(saved, total_grasps=plan.config.total_grasps)).train()
+        config = dataclasses.replace(saved, total_grasps=plan.config.total_grasps, backend=plan.config.backend,
+                                     ray_address=plan.config.ray_address)  # fmt: skip
+        return Trainer.resume(plan.run_dir, config, workers=workers).train()
     if plan.status == "restart":  # no checkpoint: what it logged cannot be continued
         print(f"{plan.run_dir}: no checkpoint, starting it over")
         (plan.run_dir / "metrics.csv").unlink(missing_ok=True)
         for stale in (plan.run_dir / "eval").glob("eval_*.json"):
             stale.unlink()
     plan.run_dir.mkdir(parents=True, exist_ok=True)
-    return Trainer(plan.config, run_dir=plan.run_dir).train()
+    return Trainer(plan.config, run_dir=plan.run_dir, workers=workers).train()
 
 
-def _train_logged(plan: PlannedRun, torch_threads: int) -> None:
+def _train_logged(plan: PlannedRun, torch_threads: int, workers: WorkersFactory | None = None) -> None:
     """The body of a campaign process: train one run, its stdout and stderr into RUN/train.log."""
     plan.run_dir.mkdir(parents=True, exist_ok=True)
     log = os.open(plan.run_dir / "train.log", os.O_WRONLY | os.O_CREAT | os.O_APPEND)
     os.dup2(log, 1)
     os.dup2(log, 2)
-    train_planned(plan, torch_threads)
+    train_planned(plan, torch_threads, workers)
 
 
-def train_replanned_logged(plan: PlannedRun) -> None:
+def train_replanned_logged(plan: PlannedRun, workers: WorkersFactory | None = None) -> None:
     """The body of a cluster job: plan the run again from its folder (a retried or requeued job resumes what an
-    earlier attempt checkpointed; a finished one is left alone), then train it into RUN/train.log."""
+    earlier attempt checkpointed; a finished one is left alone), then train it into RUN/train.log, its
+    environment workers opened by ``workers`` (default: local processes)."""
     plan = dataclasses.replace(plan, status=run_status(plan.run_dir, plan.config.total_grasps))
     if plan.status != "done":
-        _train_logged(plan, torch_threads=0)
+        _train_logged(plan, torch_threads=0, workers=workers)
 
 
 def run_campaign(plans: Sequence[PlannedRun], parallel: int = 1) -> list[tuple[PlannedRun, int]]:
@@ -223,41 +236,6 @@ def overrides_from_args(args: Table1Args) -> dict[str, Any]:
     return overrides
 
 
-def cluster_problems(args: Table1Args) -> list[str | None]:
-    """Why the cluster options of ``args`` cannot work (before anything is submitted)."""
-    if args.backend == "local" or args.table_only:
-        return []
-    from apr.cluster import missing
-
-    module = "ray" if args.backend == "ray" else "submitit"
-    return [
-        missing(module, f"--backend {args.backend}"),
-        None if args.workers > 0 else f"--backend {args.backend} needs --workers N: the environment workers "
-        "each run reserves CPUs for",
-        checks.at_least("--max-jobs", args.max_jobs, 0),
-        None if args.gpus_per_run >= 0 else f"--gpus-per-run must be at least 0, got {args.gpus_per_run}",
-        None if args.backend != "slurm" or float(args.gpus_per_run).is_integer()
-        else f"--gpus-per-run {args.gpus_per_run}: Slurm reserves whole GPUs",
-        checks.at_least("--slurm-timeout-min", args.slurm_timeout_min, 1),
-        None if args.backend != "slurm" or shutil.which("sbatch") else "--backend slurm: no Slurm here (sbatch is "
-        "not on PATH); run the command on the cluster's login node",
-    ]  # fmt: skip
-
-
-def train_campaign(plans: Sequence[PlannedRun], args: Table1Args) -> list[tuple[PlannedRun, int]]:
-    """Train the runs that are not done where ``args.backend`` says; return (run, exit code) for each."""
-    if args.backend == "ray":
-        from apr.cluster.ray_campaign import run_campaign_ray
-
-        return run_campaign_ray(plans, args.ray_address, args.gpus_per_run, args.max_jobs)
-    if args.backend == "slurm":
-        from apr.cluster.slurm_campaign import run_campaign_slurm
-
-        return run_campaign_slurm(plans, args.out / "slurm", args.slurm_partition, args.slurm_timeout_min,
-                                  int(args.gpus_per_run), args.max_jobs, cluster="slurm")  # fmt: skip
-    return run_campaign(plans, args.parallel)
-
-
 def command_line(args: Table1Args) -> str:
     """The ``apr reproduce table1`` command line that gives ``args``."""
     parts = ["apr reproduce table1", f"--seeds {args.seeds}"]
@@ -276,27 +254,41 @@ def command_line(args: Table1Args) -> str:
     return " ".join(parts)
 
 
-def run(args: Table1Args, overrides: dict[str, Any] | None = None) -> Path:
-    """Plan, train what is missing, and write ``OUT/table1.md``; return its path.
-
-    Args:
-        overrides: further TrainConfig fields for every run (tests use them to shrink the smoke preset).
-    """
-    checks.refuse("apr reproduce table1", [
+def problems(args: Table1Args) -> list[str | None]:
+    """What makes ``args`` unrunnable, each naming its flag (None entries: fine); the cluster options are the
+    caller's to check (``apr.commands.backends.cluster_problems``)."""
+    return [
         checks.at_least("--seeds", args.seeds, 1), checks.at_least("--parallel", args.parallel, 1),
         checks.at_least("--workers", args.workers, 0),
         *(checks.at_least(f"--{name.replace('_', '-')}", getattr(args, name), 1)
           for name in ("grasps", "eval_episodes", "replay_capacity") if getattr(args, name) is not None),
         checks.at_least("--random-grasps", args.random_grasps, 0) if args.random_grasps is not None else None,
-        checks.output_folder("--out", args.out), *cluster_problems(args),
-    ])  # fmt: skip
+        checks.output_folder("--out", args.out),
+    ]  # fmt: skip
+
+
+def run(args: Table1Args, overrides: dict[str, Any] | None = None, executor: CampaignExecutor | None = None) -> Path:
+    """Plan, train what is missing, and write ``OUT/table1.md``; return its path.
+
+    Args:
+        overrides: further TrainConfig fields for every run (tests use them to shrink the smoke preset).
+        executor: trains the runs (default: :func:`run_campaign` on this machine, ``--parallel`` at a time). Any
+            other ``--backend`` needs its executor from the cluster layer, which ``apr reproduce table1`` passes
+            (``apr.commands.backends.campaign_executor``).
+    """
+    checks.refuse("apr reproduce table1", problems(args))
+    if executor is None:
+        if args.backend != "local" and not args.table_only:
+            raise SystemExit(f"apr reproduce table1: error: --backend {args.backend} needs its campaign executor, "
+                             "which apr.commands.backends.campaign_executor(args) gives")  # fmt: skip
+        executor = partial(run_campaign, parallel=args.parallel)
     seeds = list(range(args.seeds))
     plans = plan_runs(
         args.presets, seeds, args.out, {**overrides_from_args(args), **(overrides or {})}, args.tiny_model
     )
     failed = []
     if not args.table_only:
-        failed = [plan for plan, code in train_campaign(plans, args) if code != 0]
+        failed = [plan for plan, code in executor(plans) if code != 0]
     present = [plan.run_dir for plan in plans if (plan.run_dir / "config.json").exists()]
     source = (
         f"Built from the final evaluations of the runs under `{args.out}` ({len(present)} of {len(plans)} "

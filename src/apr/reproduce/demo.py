@@ -26,6 +26,7 @@ from apr.reproduce.policies import (
     load_packaged,
     load_policy,
     packaged_checkpoints,
+    picture_renderer,
     untrained_snapshot,
 )
 from apr.reproduce.table import format_percent
@@ -44,8 +45,10 @@ class DemoArgs:
     """A run folder, a training checkpoint or a packaged checkpoint; default: the packaged one, if any."""
     gif_episodes: int = 2
     """Episodes shown in the GIF (the first ones of the evaluation)."""
-    renderer: Literal["auto", "egl", "tiny"] = "auto"
-    """auto, egl or tiny."""
+    renderer: Literal["trained", "auto", "egl", "tiny"] = "trained"
+    """trained: the renderer the policy was trained with (where it cannot serve, the one that can, with a
+    warning: the policy never saw those images); auto, egl or tiny: that one (a warning when it is not the
+    policy's)."""
 
 
 @dataclass
@@ -57,6 +60,10 @@ class DemoResult:
     ci_high: float
     report: Path
     figures: FigureSet
+    renderer: str = ""
+    """What the episodes rendered with: "egl" or "tiny"."""
+    renderer_warning: str = ""
+    """Why those images are not the kind the policy was trained on ("" when they are)."""
 
 
 def untrained_notice(snapshot: PolicySnapshot, packaged_dir: Path) -> str:
@@ -101,7 +108,9 @@ def run(args: DemoArgs, packaged_dir: Path = PACKAGED_DIR) -> DemoResult:
     print(f"policy: {snapshot.label}")
     if snapshot.training:
         print(textwrap.fill(snapshot.training, 100))
-    renderer = None if args.renderer == "auto" else args.renderer
+    renderer, renderer_warning = picture_renderer(snapshot, args.renderer, "apr demo")
+    if renderer_warning:
+        print(textwrap.fill(f"warning: {renderer_warning}", 100))
     records = evaluation_episodes(snapshot, args.episodes, renderer, keep_frames=max(args.gif_episodes, 3))
     successes = sum(record.success for record in records)
     low, high = wilson_interval(successes, len(records))
@@ -112,29 +121,33 @@ def run(args: DemoArgs, packaged_dir: Path = PACKAGED_DIR) -> DemoResult:
     print(summary)
     figures = make_figures(snapshot, args.out, records, renderer=renderer, gif_episodes=args.gif_episodes)
     report = args.out / "report.md"
-    report.write_text(_report(snapshot, notice, records, summary, figures))
+    report.write_text(_report(snapshot, notice, records, summary, figures, renderer, renderer_warning))
     (args.out / "result.json").write_text(json.dumps({
         "policy": snapshot.label, "trained": snapshot.trained, "grasps": snapshot.grasps, "source": snapshot.source,
         "split": "test", "episodes": len(records), "successes": successes, "success_rate": successes / len(records),
-        "ci_low": low, "ci_high": high,
+        "ci_low": low, "ci_high": high, "renderer": renderer, "trained_renderer": snapshot.renderer,
         "outcomes": [{"seed": r.seed, "attempted": r.attempted, "success": r.success} for r in records],
     }, indent=2))  # fmt: skip
     print(f"report: {report}")
-    return DemoResult(snapshot, successes, len(records), low, high, report, figures)
+    return DemoResult(snapshot, successes, len(records), low, high, report, figures, renderer, renderer_warning)
 
 
-def _report(snapshot: PolicySnapshot, notice: str, records: list, summary: str, figures: FigureSet) -> str:
+def _report(snapshot: PolicySnapshot, notice: str, records: list, summary: str, figures: FigureSet, renderer: str,
+            renderer_warning: str) -> str:  # fmt: skip
     env = snapshot.config.env
     lines = ["# apr demo", ""]
     if notice:
         lines += [f"> **UNTRAINED POLICY.** {notice}", ""]
+    if renderer_warning:
+        lines += [f"> **Other images than in training.** {renderer_warning[0].upper()}{renderer_warning[1:]}.", ""]
     lines += [
         f"**Policy:** {snapshot.label}.",
         "",
         *([f"**Training:** {snapshot.training}", ""] if snapshot.training else []),
         f"**Task:** `{env.env_id}` (dof {env.dof}, target `{env.target}`, foveation `{env.foveation}`) on held-out "
         f"objects (exactly 5 in the tray), the deterministic (mean) action, seeds {EVAL_SEED} to "
-        f"{EVAL_SEED + len(records) - 1} (those `apr eval` uses).",
+        f"{EVAL_SEED + len(records) - 1} (those `apr eval` uses), rendered with `{renderer}`"
+        + (f" (the policy was trained on `{snapshot.renderer}` images)." if snapshot.renderer else "."),
         "",
         f"## Result: {summary}",
         "",

@@ -42,7 +42,14 @@ from apr.reproduce.episodes import (
     scripted_actions,
     upscale,
 )
-from apr.reproduce.policies import PolicySnapshot, initial_snapshot, load_run, load_training_checkpoint, run_checkpoints
+from apr.reproduce.policies import (
+    PolicySnapshot,
+    initial_snapshot,
+    load_run,
+    load_training_checkpoint,
+    picture_renderer,
+    run_checkpoints,
+)
 from apr.train.checkpoints import CheckpointError, read_checkpoint
 from apr.train.config import EnvConfig
 from apr.train.evaluation import EVAL_SEED
@@ -67,8 +74,9 @@ class FiguresArgs:
     """Episodes in the GIF (the first ones); default: all of them."""
     steps: int = 5
     """Steps of the Figure 3 episode."""
-    renderer: Literal["auto", "egl", "tiny"] = "auto"
-    """auto, egl or tiny."""
+    renderer: Literal["trained", "auto", "egl", "tiny"] = "trained"
+    """trained: the renderer the run's policy was trained with (where it cannot serve, the one that can, with a
+    warning); auto, egl or tiny: that one (a warning when it is not the policy's)."""
 
 
 @dataclass
@@ -324,6 +332,7 @@ def make_figures(
     renderer: str | None = None,
     gif_episodes: int = 3,
     pregrasp_episodes: int = 6,
+    renderer_note: str = "",
 ) -> FigureSet:
     """Write the five pictures of ``snapshot`` into ``out``, and their captions into ``out/figures.md``.
 
@@ -331,8 +340,12 @@ def make_figures(
         records: evaluation episodes run with ``snapshot`` (:func:`evaluation_episodes`): the first
             ``gif_episodes`` make the GIF, the first ``pregrasp_episodes`` Figure 5, the first 3 Figure 6's scenes.
         gqn_snapshots: the snapshots Figure 6 compares (default: ``snapshot`` alone), described by ``gqn_label``.
+        renderer_note: why the episodes' images are not the kind the policy was trained on (a note of
+            ``figures.md``; "" when they are).
     """
     result = FigureSet(episodes=list(records))
+    if renderer_note:
+        result.notes.append(f"Other images than in training: {renderer_note}.")
     label = snapshot.label
     shown = [record for record in records[:gif_episodes] if record.frames]
 
@@ -427,7 +440,9 @@ def run(args: FiguresArgs) -> FigureSet:
     snapshots = [initial_snapshot(snapshot.config, args.run_dir.name)]
     states = {path: _read_or_report(path) for path in run_checkpoints(args.run_dir)}
     snapshots += [load_training_checkpoint(path, state) for path, state in states.items() if state is not None]
-    renderer = None if args.renderer == "auto" else args.renderer
+    renderer, renderer_warning = picture_renderer(snapshot, args.renderer, "apr figures")
+    if renderer_warning:
+        print(textwrap.fill(f"warning: {renderer_warning}", 100))
     gqn_label = f"run {args.run_dir.name} (its initial weights, then each checkpoint it kept)"
     records = evaluation_episodes(snapshot, args.episodes, renderer)
     result = make_figures(
@@ -440,6 +455,7 @@ def run(args: FiguresArgs) -> FigureSet:
         renderer,
         gif_episodes=args.gif_episodes or args.episodes,
         pregrasp_episodes=args.episodes,
+        renderer_note=renderer_warning,
     )
     for name, path in result.paths.items():
         print(f"{name}: {path}")

@@ -106,13 +106,24 @@ def plot_learning_curves(run_dirs: Iterable[Path], title: str = "") -> Figure:
     return figure
 
 
+def _run_dir_problem(path: Path) -> str | None:
+    """Why ``path`` is neither a run folder nor a folder of runs (None when it is one of them)."""
+    if not path.exists():
+        return f"{path} does not exist"
+    try:
+        find_run_dirs([path])
+    except FileNotFoundError as error:
+        return str(error)
+    return None
+
+
 def run(args: PlotArgs) -> Path:
     if not args.run_dirs:
         raise SystemExit("apr plot: give at least one run folder (or a folder of runs)")
     checks.refuse("apr plot", [
         f"--out {args.out} is a folder; give a file name" if args.out.is_dir() else None,
         checks.output_folder("--out", args.out.parent),
-        *(f"{path} does not exist" for path in args.run_dirs if not path.exists()),
+        *(_run_dir_problem(path) for path in args.run_dirs),
     ])  # fmt: skip
     args.out.parent.mkdir(parents=True, exist_ok=True)
     plot_learning_curves(args.run_dirs, args.title).savefig(args.out, dpi=120)

@@ -20,11 +20,13 @@ from typing import Annotated, Literal
 import torch
 import tyro
 
+from apr.envs.rendering import EGL_INSTALL, resolve
 from apr.machine import machine_description
 from apr.model.agent import APRAgent
 from apr.reproduce.runs import final_eval
 from apr.train.checkpoints import CheckpointError, newest_intact, read_checkpoint
 from apr.train.config import TrainConfig, preset
+from apr.train.evaluation import renderer_mismatch, renderer_request
 
 PACKAGED_DIR = Path(__file__).parent / "checkpoints"
 """Where packaged checkpoints live (inside the installed package)."""
@@ -50,6 +52,9 @@ class PolicySnapshot:
     training: str = ""
     """How it was trained and what it measured, when known (packaged checkpoints): command, grasps, minutes,
     machine, held-out success."""
+    renderer: str = ""
+    """What its training images came from ("egl", "tiny", "mixed"), as the checkpoint records it; "" when it
+    does not (untrained weights, or a checkpoint written before apr recorded it)."""
 
 
 def new_agent(config: TrainConfig) -> APRAgent:
@@ -91,7 +96,8 @@ def load_training_checkpoint(path: Path, state: dict | None = None) -> PolicySna
     label = f"run {run_name} at {grasps:,} grasps ({path.name})"
     if not trained:
         label += ", no learner update yet: untrained weights"
-    return PolicySnapshot(agent, config, grasps, label, trained=trained, source=str(path))
+    return PolicySnapshot(agent, config, grasps, label, trained=trained, source=str(path),
+                          renderer=state.get("renderer", ""))  # fmt: skip
 
 
 def load_run(run_dir: Path) -> PolicySnapshot:
@@ -139,7 +145,7 @@ def load_packaged(manifest_path: Path) -> PolicySnapshot:
     grasps = int(manifest["grasps"])
     label = f"packaged checkpoint {manifest_path.stem} ({config.preset}, {grasps:,} grasps)"
     return PolicySnapshot(agent, config, grasps, label, trained=grasps > 0, source=str(manifest_path),
-                          training=training_description(manifest))  # fmt: skip
+                          training=training_description(manifest), renderer=manifest.get("renderer", ""))  # fmt: skip
 
 
 def training_description(manifest: dict) -> str:
@@ -151,11 +157,42 @@ def training_description(manifest: dict) -> str:
         text += f" on {manifest['machine']}"
     evaluation = manifest.get("final_eval")
     if evaluation:
-        text += (f"; measured held-out success at those weights: {evaluation['successes']}/{evaluation['episodes']} "
-                 f"= {evaluation['success_rate']:.1%} (95% CI {evaluation['ci_low']:.1%}-{evaluation['ci_high']:.1%})")
+        text += (
+            f"; measured held-out success at those weights: {evaluation['successes']}/{evaluation['episodes']} "
+            f"= {evaluation['success_rate']:.1%} (95% CI {evaluation['ci_low']:.1%}-{evaluation['ci_high']:.1%})"
+        )
     else:
         text += "; no held-out evaluation of these exact weights was recorded"
     return text + "."
+
+
+def picture_renderer(snapshot: PolicySnapshot, asked: str, command: str) -> tuple[str, str]:
+    """The renderer of this process's environments that show ``snapshot``'s policy ("egl" or "tiny", as this
+    process resolves it), and a warning when their images are not the kind the policy was trained on ("" when
+    they are, or when the policy is untrained).
+
+    Args:
+        asked: "trained" (the policy's own renderer; where it cannot serve, the one that can, with the warning)
+            or "auto", "egl", "tiny" (that one; the warning says when the policy was trained on the other).
+        command: names the command in a refusal (an explicit "egl" that cannot serve).
+    """
+    trained = snapshot.renderer
+    request = renderer_request(trained, snapshot.config.env.renderer) if asked == "trained" else asked
+    try:
+        actual = resolve(request)
+    except RuntimeError as error:
+        raise SystemExit(f"{command}: error: --renderer {asked}: {error}") from None
+    if not snapshot.trained:
+        return actual, ""
+    if not trained:
+        return actual, (f"the renderer {snapshot.label} was trained with is not recorded (written before apr "
+                        f"recorded it); these episodes render with {actual}")  # fmt: skip
+    problem = renderer_mismatch(trained, actual)
+    if problem and asked != "trained":
+        problem += f" (--renderer {asked} was asked for)"
+    elif problem and trained == "egl":
+        problem += f". To render with EGL, {EGL_INSTALL}"
+    return actual, problem or ""
 
 
 def load_policy(path: Path) -> PolicySnapshot:
@@ -174,7 +211,11 @@ def load_policy(path: Path) -> PolicySnapshot:
 
 
 def package_checkpoint(
-    source: Path, out_dir: Path = PACKAGED_DIR, name: str = "", command: str = "", weights_format: str = "pt",
+    source: Path,
+    out_dir: Path = PACKAGED_DIR,
+    name: str = "",
+    command: str = "",
+    weights_format: str = "pt",
     machine: str = "",
 ) -> Path:
     """Write a packaged checkpoint (manifest and weights) from a run folder or a training checkpoint.
@@ -223,6 +264,7 @@ def package_checkpoint(
         }
         if evaluation
         else None,
+        "renderer": snapshot.renderer,
         "config": json.loads(config.to_json()),
     }
     manifest_path = out_dir / f"{name}.json"

@@ -21,6 +21,8 @@ import tyro
 
 from apr.model.config import ModelConfig
 
+PASSIVE_ENV_ID = "apr/PassiveGrasp-v0"
+"""The passive model's environment: three static cameras, no head, no log-polar warp."""
 STEPS_PER_GRASP_ESTIMATE = 10
 """Grasp steps an episode takes on average (a guess for sizing schedules; episodes take 1 to 15)."""
 
@@ -43,11 +45,15 @@ class EnvConfig:
     dof: Literal[4, 6] = 6
     """Gripper degrees of freedom (paper: 6; 4 for Active-Learned-4D)."""
     target: Literal["env", "learned"] = "env"
-    """Environment-selected target (section 4A) or learned fixation (section 4B). Passive: always env."""
+    """Environment-selected target (section 4A) or learned fixation (section 4B). Passive: env only (its cameras
+    are static: there is no fixation to learn), and learned is refused."""
     foveation: Literal["logpolar", "resize"] = "logpolar"
-    """Log-polar-like warp or plain resize (the "w/o log-polar" ablation, section 4C). Passive: resize."""
+    """Log-polar-like warp or plain resize (the "w/o log-polar" ablation, section 4C). Passive: always resize
+    (a run records it so); an explicit --env.foveation logpolar is refused."""
     renderer: Literal["auto", "egl", "tiny"] = "auto"
-    """EGL when its plugin loads, else TinyRenderer."""
+    """auto: EGL when its plugin loads, else TinyRenderer (the environments' own default is tiny; each worker is
+    a process with one environment, so EGL's one world per process is no limit here). What the workers resolved
+    it to is recorded in the checkpoints, and evaluations of the policy are checked against it."""
     reach_scale: float = 10.0
     """Reach reward per metre of progress toward the fixation point (ours; the paper gives no formula). At 1.0
     the reach reward (at most ~0.06 a step) is drowned by SAC's entropy bonus: docs/decisions.md."""
@@ -88,7 +94,8 @@ class TrainConfig:
     """Environment processes (Ray actors with ``--backend ray``); 0 = one per CPU core of this machine."""
     backend: Literal["local", "ray"] = "local"
     """Where the environment workers run: processes of this machine, or Ray actors spread over a Ray cluster's
-    nodes (the learner stays in this process; ``pip install -e ".[cluster]"``). Either gives the same numbers."""
+    nodes (the learner stays in this process; ``pip install -e ".[cluster]"``). Either gives the same numbers.
+    ``apr train`` opens the workers this names and passes them to the trainer (``Trainer(config, workers=...)``)."""
     ray_address: str = ""
     """The Ray cluster of ``--backend ray``: ``auto`` or ``HOST:6379``; empty = the
     ``RAY_ADDRESS`` cluster, one started on this machine with ``ray start``, or else a new one on this machine."""
@@ -133,11 +140,19 @@ class TrainConfig:
             expected = self.total_grasps * STEPS_PER_GRASP_ESTIMATE * self.updates_per_step
             model = model.replace(gqn_anneal_updates=max(int(expected), 1))
         workers = self.workers or os.cpu_count() or 1
-        return dataclasses.replace(self, model=model, workers=workers, eval_workers=self.eval_workers or workers)
+        env = self.env
+        if env.env_id == PASSIVE_ENV_ID:  # its three static cameras are resized, whatever a preset said
+            env = dataclasses.replace(env, foveation="resize")
+        return dataclasses.replace(self, env=env, model=model, workers=workers,
+                                   eval_workers=self.eval_workers or workers)  # fmt: skip
 
     def problems(self) -> list[str]:
         """What makes this configuration unrunnable, one sentence per field, each naming its flag (empty: none)."""
         problems = [f"{flag(path)} {message}" for path, message in _field_problems(self)]
+        if self.env.env_id == PASSIVE_ENV_ID and self.env.target == "learned":
+            problems.append(f"--env.target learned contradicts --env.env-id {PASSIVE_ENV_ID}: the passive model's "
+                            "cameras are static, it has no fixation to learn; use --env.target env, or "
+                            "--env.env-id apr/ActiveGrasp-v0 for learned fixation")  # fmt: skip
         if self.replay_capacity >= 1 and self.model.batch_size >= 1 and self.replay_capacity < self.model.batch_size:
             problems.append(f"--replay-capacity {self.replay_capacity} is smaller than one learner batch "
                             f"(--model.batch-size {self.model.batch_size}): the learner would never start")  # fmt: skip
@@ -145,14 +160,9 @@ class TrainConfig:
             problems.append(f"--run-name {self.run_name!r} must be a plain folder name (no path separators)")
         if self.runs_dir.exists() and not self.runs_dir.is_dir():
             problems.append(f"--runs-dir {self.runs_dir} is a file, not a folder")
-        if self.backend == "ray":
-            from apr.cluster import missing
-
-            problems.append(missing("ray", "--backend ray"))
-            if self.workers == 0:
-                problems.append("--workers 0 means this machine's cores; with --backend ray give the number of "
-                                "environment actors to spread over the cluster (at most its CPUs)")  # fmt: skip
-        problems = [problem for problem in problems if problem]
+        if self.backend == "ray" and self.workers == 0:
+            problems.append("--workers 0 means this machine's cores; with --backend ray give the number of "
+                            "environment actors to spread over the cluster (at most its CPUs)")  # fmt: skip
         device = self.model.device
         if device.startswith("cuda"):
             import torch

@@ -44,10 +44,10 @@ from apr.train.checkpoints import (
     write_text_atomically,
 )
 from apr.train.config import ConfigError, TrainConfig, flag, resume_conflicts
-from apr.train.evaluation import evaluate
+from apr.train.evaluation import evaluate, renderer_request
 from apr.train.replay import ReplayBuffer, ReplaySpec
 from apr.train.rollout import EpisodeResult, episode_seed, run_round
-from apr.train.workers import StepResult, open_workers
+from apr.train.workers import LocalWorkers, StepResult, WorkersFactory, pool_renderer, renderer_counts
 
 METRICS_COLUMNS = (
     "grasps", "env_steps", "updates", "wall_s", "train_success", "eval_success", "eval_ci_low", "eval_ci_high",
@@ -137,10 +137,21 @@ class Trainer:
 
     ``Trainer(config, run_dir=FOLDER)`` starts a new run in a given folder (which may exist). The run folder is
     locked (``train.lock``) from then until ``train()`` returns or :meth:`close` is called.
+
+    ``workers`` opens the environment workers (:class:`apr.train.workers.WorkersFactory`; default: local
+    processes). It must serve ``config.backend``: a Ray run takes ``workers=apr.cluster.ray_workers.RayWorkers(
+    config.ray_address)``, which ``apr train --backend ray`` passes.
     """
 
-    def __init__(self, config: TrainConfig, run_dir: Path | None = None, *, _resuming: bool = False):
+    def __init__(self, config: TrainConfig, run_dir: Path | None = None, *, workers: WorkersFactory | None = None,
+                 _resuming: bool = False):  # fmt: skip
         config.check()  # everything is checked and built before a run folder is touched
+        self.workers_factory = workers or LocalWorkers()
+        if self.workers_factory.backend != config.backend:
+            raise ConfigError(
+                f"--backend {config.backend}: this trainer was given {self.workers_factory.backend} workers; pass "
+                f"the factory of the backend (apr train does: --backend ray opens apr.cluster.ray_workers.RayWorkers)"
+            )
         self.config = config = config.resolved()
 
         spec = ReplaySpec(
@@ -167,6 +178,10 @@ class Trainer:
             torch.set_num_threads(max(1, (os.cpu_count() or 1) - config.workers))
         self.rng = np.random.default_rng(config.seed)
         self.progress = Progress()
+        self.renderer = ""
+        """What the training images so far came from: "egl", "tiny", or "mixed" (the workers did not agree, or a
+        resume changed it); "" before the workers first answer. Saved in every checkpoint, and evaluations of its
+        policy are checked against it."""
         self._recorder = _Recorder(self.replay)
         self._stop_requested = False
         self._lock: RunLock | None = None
@@ -200,9 +215,11 @@ class Trainer:
             return TrainConfig.from_json(found[1]["config"])
 
     @classmethod
-    def resume(cls, run_dir: Path, config: TrainConfig | None = None) -> Trainer:
+    def resume(
+        cls, run_dir: Path, config: TrainConfig | None = None, *, workers: WorkersFactory | None = None
+    ) -> Trainer:
         """Continue the run in ``run_dir`` from its newest intact checkpoint (``config``: the saved one, or a
-        changed copy of it, e.g. with more ``total_grasps``).
+        changed copy of it, e.g. with more ``total_grasps``; ``workers``: as for a new run).
 
         Nothing in the folder changes until the new configuration has been checked against the checkpoint's:
         a field that cannot change on resume is refused by name (:class:`ConfigError`), a finished run raises
@@ -211,7 +228,7 @@ class Trainer:
         """
         run_dir = Path(run_dir)
         saved = cls.saved_config(run_dir)
-        trainer = cls(config or saved, _resuming=True)
+        trainer = cls(config or saved, workers=workers, _resuming=True)
         config = trainer.config
         lock = RunLock(run_dir)
         try:
@@ -263,6 +280,7 @@ class Trainer:
             reason = str(error).strip().splitlines()[0]
             raise ConfigError(f"{checkpoint.name} does not fit this configuration: {reason}") from None
         self.progress = Progress(**state["progress"])
+        self.renderer = state.get("renderer", "")  # checkpoints written before the renderer was recorded: ""
         self.rng.bit_generator.state = state["rng"]
         try:
             self.replay.load(replay_file(checkpoint, state))
@@ -276,16 +294,16 @@ class Trainer:
         from torch.utils.tensorboard import SummaryWriter
 
         self.writer = SummaryWriter(str(self.run_dir / "tb"))
-        workers = self.workers = open_workers(config.workers, env.env_id, env.make_kwargs("train"), config.backend,
-                                              config.ray_address)  # fmt: skip
-        if config.backend == "ray":
-            print(f"ray: {workers.describe()}")
+        workers = self.workers = self.workers_factory(config.workers, env.env_id, env.make_kwargs("train"))
+        if config.backend != "local":
+            print(f"{config.backend}: {workers.describe()}")
             if self.agent.device.type == "cpu":  # only the actors on this machine take our cores
                 torch.set_num_threads(max(1, (os.cpu_count() or 1) - workers.on_this_machine()))
         previous_handler = signal.signal(signal.SIGINT, self._request_stop)
         started = time.perf_counter() - progress.wall_s
         bar = tqdm(total=config.total_grasps, initial=progress.grasps, unit="grasp", dynamic_ncols=True)
         try:
+            self._record_renderer(workers.renderers())
             while not self._finished() and not self._stop_requested:
                 before = progress.grasps
                 count = min(len(workers), config.total_grasps - progress.grasps)
@@ -312,6 +330,20 @@ class Trainer:
             self.writer.close()
             self.close()
         return self.run_dir
+
+    def _record_renderer(self, renderers: list[str]) -> None:
+        """Note what the workers render with (``renderers``, one per worker); warn where they disagree, or where a
+        resumed run's workers render with another renderer than its earlier training did."""
+        now, before = pool_renderer(renderers), self.renderer
+        tqdm.write(f"renderer: {now}" + (f" ({renderer_counts(renderers)})" if now == "mixed" else ""))
+        if now == "mixed":
+            tqdm.write("warning: the environment workers render with different renderers: the policy learns from "
+                       "two kinds of images, and no evaluation renderer matches them")  # fmt: skip
+        if before and before != now:
+            tqdm.write(f"warning: this run trained on {before} images until now, and its workers render with {now} "
+                       f"here: recorded as mixed; resume where {before} serves to keep the images alike")  # fmt: skip
+            now = "mixed"
+        self.renderer = now
 
     def _finished(self) -> bool:
         """The grasp budget is spent, or the training-time budget (``max_train_minutes``)."""
@@ -408,8 +440,9 @@ class Trainer:
         """Evaluate on held-out objects; write ``eval/eval_GRASPS.json`` (``final``: the run's last one)."""
         config = self.config
         started = time.perf_counter()
-        result = evaluate(self.agent, config.env, episodes or config.eval_episodes, "test", config.eval_workers,
-                          config.backend, config.ray_address).to_dict()  # fmt: skip
+        env = dataclasses.replace(config.env, renderer=renderer_request(self.renderer, config.env.renderer))
+        result = evaluate(self.agent, env, episodes or config.eval_episodes, "test", config.eval_workers,
+                          self.workers_factory, self.renderer, on_mismatch="warn").to_dict()  # fmt: skip
         elapsed = time.perf_counter() - started
         self.progress.eval_s += elapsed
         self.progress.wall_s += elapsed  # the round loop recomputes it from the start time; the same sum
@@ -483,6 +516,7 @@ class Trainer:
             "rng": self.rng.bit_generator.state,
             "replay": replay_name,
             "config": self.config.to_json(),
+            "renderer": self.renderer,
         }
         path = directory / f"checkpoint_{grasps:08d}.pt"
         write_atomically(path, lambda temporary: torch.save(state, temporary))
@@ -565,4 +599,3 @@ def _truncate_metrics(path: Path, grasps: int) -> None:
         writer = csv.DictWriter(file, fieldnames=METRICS_COLUMNS)
         writer.writeheader()
         writer.writerows(row for row in rows if int(row["grasps"]) <= grasps)
-

@@ -12,7 +12,7 @@ import multiprocessing
 import signal
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
-from typing import Any, Literal, Protocol
+from typing import Any, Protocol
 
 import gymnasium as gym
 
@@ -70,6 +70,8 @@ def _serve(connection: Connection, env_id: str, env_kwargs: dict[str, Any]) -> N
                     connection.send(("ok", (observation, info)))
                 elif command == "step":
                     connection.send(("ok", env.step(payload)))
+                elif command == "renderer":
+                    connection.send(("ok", env.unwrapped.renderer_in_use()))
                 else:
                     raise ValueError(f"unknown command {command!r}")
             except Exception as error:  # a physics or env error: report it, then let the pool replace us
@@ -78,10 +80,6 @@ def _serve(connection: Connection, env_id: str, env_kwargs: dict[str, Any]) -> N
     finally:
         env.close()
         connection.close()
-
-
-Backend = Literal["local", "ray"]
-"""Where environment workers run: processes of this machine, or Ray actors anywhere on a Ray cluster."""
 
 
 class Workers(Protocol):
@@ -105,6 +103,10 @@ class Workers(Protocol):
         """Where the workers run, in one line."""
         ...
 
+    def renderers(self) -> list[str]:
+        """The renderer each worker's environment uses, "egl" or "tiny" (worlds not built yet are built)."""
+        ...
+
     def close(self) -> None: ...
 
     def __enter__(self) -> Workers: ...
@@ -112,18 +114,35 @@ class Workers(Protocol):
     def __exit__(self, *exc: object) -> None: ...
 
 
-def open_workers(num_workers: int, env_id: str, env_kwargs: dict[str, Any], backend: Backend = "local",
-                 ray_address: str = "", reserve_cpus: bool = True) -> Workers:  # fmt: skip
-    """A pool of ``num_workers`` environments: :class:`EnvWorkers` (local processes) or, with ``backend="ray"``,
-    :class:`apr.cluster.ray_workers.RayEnvWorkers` (Ray actors; ``reserve_cpus=False`` for evaluation actors,
-    which run while the training actors wait)."""
-    if backend == "ray":
-        from apr.cluster.ray_workers import RayEnvWorkers
+class WorkersFactory(Protocol):
+    """Opens the pool of environments a run or an evaluation steps.
 
-        return RayEnvWorkers(num_workers, env_id, env_kwargs, ray_address, cpus_per_worker=1.0 if reserve_cpus else 0)
-    if backend != "local":
-        raise ValueError(f"unknown backend {backend!r}; choose local or ray")
-    return EnvWorkers(num_workers, env_id, env_kwargs)
+    The caller chooses it and passes it down (``Trainer(config, workers=...)``, ``evaluate(..., workers=...)``),
+    as a Stable-Baselines3 user chooses a VecEnv: :class:`LocalWorkers` (processes of this machine, the default)
+    or ``apr.cluster.ray_workers.RayWorkers`` (Ray actors). Training never imports the cluster layer.
+    """
+
+    backend: str
+    """The ``TrainConfig.backend`` this factory serves ("local", "ray"); a trainer refuses a factory whose backend
+    is not its configuration's, so that ``config.json`` says where a run's environments ran."""
+
+    def __call__(
+        self, num_workers: int, env_id: str, env_kwargs: dict[str, Any], *, evaluation: bool = False
+    ) -> Workers:
+        """A pool of ``num_workers`` environments ``gymnasium.make(env_id, **env_kwargs)``; ``evaluation``: for
+        held-out episodes, which run while the training pool waits (a Ray pool then reserves no CPU)."""
+        ...
+
+
+class LocalWorkers:
+    """Opens :class:`EnvWorkers`, one process of this machine per environment (``--backend local``)."""
+
+    backend = "local"
+
+    def __call__(
+        self, num_workers: int, env_id: str, env_kwargs: dict[str, Any], *, evaluation: bool = False
+    ) -> Workers:
+        return EnvWorkers(num_workers, env_id, env_kwargs)
 
 
 class EnvWorkers:
@@ -164,6 +183,20 @@ class EnvWorkers:
 
     def describe(self) -> str:
         return f"{len(self)} environment processes on this machine"
+
+    def renderers(self) -> list[str]:
+        """The renderer each worker's environment uses (asked between episodes; a worker that fails to answer is
+        replaced, counted in ``failures``, and asked again)."""
+        for index in range(len(self)):
+            self._send(index, ("renderer", None))
+        answers: list[str] = []
+        for index in range(len(self)):
+            answer = self.receive(index)
+            while isinstance(answer, WorkerFailure):
+                self._send(index, ("renderer", None))
+                answer = self.receive(index)
+            answers.append(str(answer))
+        return answers
 
     def send_reset(self, index: int, seed: int) -> None:
         if self.recycle_every > 0 and self._workers[index].resets >= self.recycle_every:
@@ -233,3 +266,14 @@ class EnvWorkers:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def pool_renderer(renderers: list[str]) -> str:
+    """What a pool's environments render with: "egl" or "tiny" when they agree, "mixed" when they do not."""
+    found = set(renderers)
+    return found.pop() if len(found) == 1 else "mixed"
+
+
+def renderer_counts(renderers: list[str]) -> str:
+    """``renderers`` counted, e.g. "62 with egl, 2 with tiny"."""
+    return ", ".join(f"{renderers.count(name)} with {name}" for name in sorted(set(renderers)))
