@@ -200,6 +200,22 @@ def test_bad_constructor_args_raise_listing_valid_values(env_id, name, value, va
         gymnasium.make(env_id, **kwargs)
 
 
+@pytest.mark.parametrize("env_id", [ACTIVE, PASSIVE])
+@pytest.mark.parametrize("render_size", [0, 96, 100, 64.0, True, "256"])
+def test_a_render_size_that_is_not_a_multiple_of_64_is_refused(env_id, render_size) -> None:
+    with pytest.raises(ValueError, match=r"render_size must be a positive multiple of 64"):
+        gymnasium.make(env_id, render_size=render_size)
+
+
+@pytest.mark.parametrize(("env_id", "kwargs"), [(ACTIVE, {"foveation": "logpolar"}), (PASSIVE, {})])
+def test_a_smaller_render_gives_the_same_observation_space(make_env, env_id, kwargs) -> None:
+    env = make_env(env_id, dof=4, render_size=128, render_mode="rgb_array", **kwargs)
+    observation, _ = env.reset(seed=0)
+    assert env.observation_space.contains(observation) and observation["images"].shape == (3, 64, 64, 4)
+    assert env.render().shape == (128, 128, 3)
+    assert all(view.shape == (128, 128, 4) for view in env.unwrapped.raw_views)
+
+
 @pytest.mark.parametrize("env_class", [ActiveGraspEnv, PassiveGraspEnv])
 def test_bad_render_mode_raises(env_class) -> None:
     # Through the class: gymnasium.make would wrap an unknown "human" mode in its own HumanRendering.

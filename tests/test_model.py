@@ -211,6 +211,20 @@ def test_update_trains_every_part_and_moves_the_targets_slowly() -> None:
         assert not torch.equal(p, old)
 
 
+def test_the_elbo_trains_the_representation_only_on_every_gqn_update_every_th_update() -> None:
+    agent = APRAgent(ModelConfig.tiny(gqn_update_every=2))
+    gqn_parts = ("encoder.", "generator.")
+    for step in range(4):
+        snapshot = {name: p.detach().clone() for name, p in agent.networks.named_parameters()}
+        metrics = agent.update(*random_batches(agent.config, seed=step), step=step)
+        changed = {name for name, p in agent.networks.named_parameters() if not torch.equal(snapshot[name], p)}
+        elbo = step % 2 == 0
+        assert ("gqn/elbo_loss" in metrics) == elbo and ("gqn/sigma" in metrics) == elbo
+        assert any(name.startswith(gqn_parts) for name in changed) == elbo, step
+        assert any(name.startswith("grasp.critic.") for name in changed), "SAC updates every time"
+        assert any(name.startswith("fixation.actor.") for name in changed)
+
+
 def test_schedules_are_pure_functions_of_the_update_count() -> None:
     config = ModelConfig(gqn_anneal_updates=1000)
     assert pixel_sigma(0, config) == 2.0 and pixel_sigma(500, config) == pytest.approx(1.35)

@@ -14,7 +14,7 @@ from apr.train.config import PRESETS, ConfigError, TrainConfig, preset
 from apr.train.evaluation import wilson_interval
 from apr.train.replay import ReplayBuffer, ReplaySpec
 from apr.train.rollout import episode_seed
-from apr.train.workers import EnvWorkers, StepResult, WorkerFailure
+from apr.train.workers import WORKER_NICENESS, EnvWorkers, StepResult, WorkerFailure
 
 SPEC = ReplaySpec(image_shape=(3, 8, 8, 4), viewpoint_shape=(3, 6), gripper_dim=9, grasp_action_dim=4)
 
@@ -193,3 +193,6 @@ def test_a_killed_worker_is_replaced_and_the_episode_reported_lost():
         np.testing.assert_array_equal(again["images"], observation_["images"])
         workers.send_step(0, np.zeros(4, np.float32))
         assert isinstance(workers.receive(0), StepResult)
+        # Replacements, like the first workers, run below the learner's priority (WORKER_NICENESS).
+        expected = min(os.getpriority(os.PRIO_PROCESS, 0) + WORKER_NICENESS, 19)
+        assert os.getpriority(os.PRIO_PROCESS, workers.pid(0)) == expected

@@ -12,6 +12,11 @@ Measured, per renderer, in a process of its own (one EGL world per process):
 - reload reset: the benchmark's way, ``resetSimulation``, reload every URDF, then settle 2,500 steps.
 
 Everything is timed after ``warmup_resets`` untimed resets: a world that has run many episodes, as in training.
+Each (renderer, render size) pair is one row. Beside the wall-clock rates, the CPU time of an env step (every
+thread of the process: EGL through llvmpipe renders on several) says what a step costs where workers and the
+learner share the cores. A second table says what a smaller render loses: the mean absolute difference (0-255) of
+the log-polar 64x64 views rendered at each size from those rendered at 512x512 by the same cameras, in three rings
+of the output image (radius below 0.3, 0.3-0.6, above 0.6; 1 is the output's edge).
 """
 
 from __future__ import annotations
@@ -29,6 +34,8 @@ class EnvBenchArgs:
 
     renderers: tuple[str, ...] = ("egl", "tiny")
     """Renderers to measure, each in its own process."""
+    render_sizes: tuple[int, ...] = (256,)
+    """Render sides to measure (multiples of 64; the paper: 256)."""
     steps: int = 60
     """Env steps timed per renderer (and as many raw-ceiling steps)."""
     resets: int = 8
@@ -45,39 +52,49 @@ def run(args: EnvBenchArgs) -> None:
     context = multiprocessing.get_context("spawn")
     rows = []
     for renderer in args.renderers:
-        with context.Pool(1) as pool:
-            rows.append(pool.apply(measure, (renderer, args)))
-    header = ("renderer", "env step/s", "raw step/s", "env/raw", "env reset/s", "scene reset/s", "reload reset/s",
-              "scene reset speed-up")  # fmt: skip
+        for size in args.render_sizes:
+            with context.Pool(1) as pool:
+                rows.append(pool.apply(measure, (renderer, size, args)))
+    header = ("renderer", "render", "env step/s", "CPU ms/step", "raw step/s", "env/raw", "env reset/s",
+              "scene reset/s", "reload reset/s", "scene reset speed-up")  # fmt: skip
     print("| " + " | ".join(header) + " |")
     print("|" + " --- |" * len(header))
     for row in rows:
         if row.get("unavailable"):
-            print(f"| {row['renderer']} | unavailable: {row['unavailable']} |")
+            print(f"| {row['renderer']} | {row['render_size']} | unavailable: {row['unavailable']} |")
             continue
         print(
-            f"| {row['renderer']} | {row['env_step_hz']:.2f} | {row['raw_step_hz']:.2f} | "
-            f"{row['env_step_hz'] / row['raw_step_hz']:.0%} | {row['env_reset_hz']:.2f} | "
+            f"| {row['renderer']} | {row['render_size']} | {row['env_step_hz']:.2f} | {row['env_step_cpu_ms']:.0f} | "
+            f"{row['raw_step_hz']:.2f} | {row['env_step_hz'] / row['raw_step_hz']:.0%} | {row['env_reset_hz']:.2f} | "
             f"{row['scene_reset_hz']:.2f} | {row['reload_reset_hz']:.3f} | "
             f"{row['scene_reset_hz'] / row['reload_reset_hz']:.1f}x |"
         )
+    fovea = [row for row in rows if "fovea_error" in row]
+    if fovea:
+        print("\nlog-polar views against the same views rendered at 512x512, mean |difference| (0-255) by ring:")
+        print("| renderer | render | r < 0.3 | 0.3-0.6 | r > 0.6 |")
+        print("| --- | --- | --- | --- | --- |")
+        for row in fovea:
+            inner, middle, outer = row["fovea_error"]
+            print(f"| {row['renderer']} | {row['render_size']} | {inner:.2f} | {middle:.2f} | {outer:.2f} |")
 
 
-def measure(renderer: str, args: EnvBenchArgs) -> dict:
-    """All the timings of one renderer (runs in a fresh process)."""
+def measure(renderer: str, render_size: int, args: EnvBenchArgs) -> dict:
+    """All the timings of one renderer at one render size (runs in a fresh process)."""
     from apr.envs.config import PHYSICS
     from apr.envs.grasp_env import ActiveGraspEnv
 
     try:
-        env = ActiveGraspEnv(dof=6, target="env", renderer=renderer)
+        env = ActiveGraspEnv(dof=6, target="env", renderer=renderer, render_size=render_size)
     except RuntimeError as error:
-        return {"renderer": renderer, "unavailable": str(error).split(".")[0]}
+        return {"renderer": renderer, "render_size": render_size, "unavailable": str(error).split(".")[0]}
     rng = np.random.default_rng(args.seed)
     env.reset(seed=args.seed)
     for _ in range(args.warmup_resets):
         env.reset()
 
     step_seconds = []
+    cpu_started = time.process_time()
     for _ in range(args.steps):
         action = rng.uniform(-1.0, 1.0, env.dof).astype(np.float32)
         action[2] = abs(action[2])  # never descend: no step includes the grasp routine
@@ -87,6 +104,7 @@ def measure(renderer: str, args: EnvBenchArgs) -> dict:
         assert not info["grasp_attempted"]
         if terminated or truncated:
             env.reset()
+    step_cpu_seconds = (time.process_time() - cpu_started) / args.steps  # a few resets included
 
     world = env.world
     cameras = [world.head.look_at(env.fixation_point, rng)[0] for _ in range(3)]
@@ -94,8 +112,9 @@ def measure(renderer: str, args: EnvBenchArgs) -> dict:
     for _ in range(args.steps):
         world.step_simulation(PHYSICS.action_repeat)
         for camera in cameras:
-            world.render(camera, segmentation=True)
+            world.render(camera, segmentation=True, from_head=True)
     raw_seconds = (time.perf_counter() - start) / args.steps
+    fovea_error = _fovea_error(world, cameras, render_size)
 
     start = time.perf_counter()
     for _ in range(args.resets):
@@ -111,12 +130,38 @@ def measure(renderer: str, args: EnvBenchArgs) -> dict:
     reload_seconds = _reload_reset_seconds(numbers, args.reloads, args.seed)
     return {
         "renderer": renderer,
+        "render_size": render_size,
         "env_step_hz": 1.0 / float(np.mean(step_seconds)),
+        "env_step_cpu_ms": 1000 * step_cpu_seconds,
+        "fovea_error": fovea_error,
         "raw_step_hz": 1.0 / raw_seconds,
         "env_reset_hz": 1.0 / reset_seconds,
         "scene_reset_hz": 1.0 / scene_reset_seconds,
         "reload_reset_hz": 1.0 / reload_seconds,
     }
+
+
+def _fovea_error(world: object, cameras: list, render_size: int, reference_size: int = 512) -> tuple[float, ...]:
+    """Mean |difference| (0-255) between the log-polar views of ``cameras`` rendered at ``render_size`` and at
+    ``reference_size``, in the rings r < 0.3, 0.3 <= r < 0.6 and r >= 0.6 of the 64x64 output (r = 1 at its
+    edge)."""
+    from apr.envs.config import CAMERA
+    from apr.envs.rendering import render
+    from apr.foveation import logpolar_warp
+
+    axis = np.linspace(-1.0, 1.0, CAMERA.image_size)
+    radius = np.hypot(*np.meshgrid(axis, axis))
+    rings = [radius < 0.3, (radius >= 0.3) & (radius < 0.6), radius >= 0.6]
+    errors = [[] for _ in rings]
+    for camera in cameras:
+        views = [
+            logpolar_warp(render(world.client, camera, size, world.renderer, CAMERA.near, CAMERA.far)[0]).astype(float)
+            for size in (render_size, reference_size)
+        ]
+        difference = np.abs(views[0] - views[1]).mean(axis=-1)
+        for ring, error in zip(rings, errors, strict=True):
+            error.append(difference[ring].mean())
+    return tuple(float(np.mean(error)) for error in errors)
 
 
 def _reload_reset_seconds(numbers: list[int], repeats: int, seed: int) -> float:

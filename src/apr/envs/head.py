@@ -34,7 +34,18 @@ class Head:
         self.joints = [j for j in range(client.getNumJoints(self.uid)) if client.getJointInfo(self.uid, j)[2] == 0]
         if len(self.joints) != 6:
             raise RuntimeError(f"the head should have 6 revolute joints, found {len(self.joints)}")
+        self._colors = {shape[1]: shape[7] for shape in client.getVisualShapeData(self.uid)}
+        """Link -> RGBA of the head's visual shapes, to show it again after :meth:`set_visible`."""
+        self.visible = True
         self.reset()
+
+    def set_visible(self, visible: bool) -> None:
+        """Show or hide the head's visual shapes (hidden ones cost TinyRenderer nothing; physics is unaffected)."""
+        if visible == self.visible:
+            return
+        for link, color in self._colors.items():
+            self.client.changeVisualShape(self.uid, link, rgbaColor=color if visible else (0.0, 0.0, 0.0, 0.0))
+        self.visible = visible
 
     def reset(self) -> None:
         """Put the head back in its rest pose."""

@@ -35,15 +35,17 @@ class GraspWorld:
         renderer: "tiny" (any number of worlds per process), "egl" (one EGL world per process) or "auto" (EGL if
             its plugin loads, else TinyRenderer; never both in one process).
         with_head: load the xArm6 head (the active model); the passive model has none.
+        render_size: side of every render in pixels (the paper: 256).
     """
 
-    def __init__(self, renderer: str = "tiny", with_head: bool = True):
+    def __init__(self, renderer: str = "tiny", with_head: bool = True, render_size: int = CAMERA.render_size):
         with quiet_c_output():  # pybullet prints argv[0] on connect
             self.client: BulletClient | None = BulletClient(connection_mode=p.DIRECT)
         self.renderer = claim_renderer(self, renderer)
         """The renderer in use: "egl" or "tiny" ("egl" may still fall back to "tiny" at first use with "auto")."""
         self._requested = renderer
         self._with_head = with_head
+        self.render_size = render_size
         self._built = False
         self._pool: OrderedDict[int, int] = OrderedDict()  # object number -> body uid, least recent first
         self._inertia: dict[int, tuple[float, float, float]] = {}
@@ -214,10 +216,20 @@ class GraspWorld:
         c.setCollisionFilterGroupMask(uid, -1, 1, -1)
 
     # --------------------------------------------------------------------------------------------- rendering
-    def render(self, camera: Camera, segmentation: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
-        """RGB (uint8, (256, 256, 3)) and, when asked, body ids (int32, (256, 256)) seen by ``camera``."""
+    def render(
+        self, camera: Camera, segmentation: bool = False, from_head: bool = False
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """RGB (uint8, (S, S, 3)) and, when asked, body ids (int32, (S, S)) seen by ``camera``; S =
+        ``render_size``.
+
+        ``from_head``: the camera is the head's own. The head never appears in its own views (0 of 120 views
+        measured, bitwise; docs/decisions.md), so TinyRenderer then renders without it, a third less CPU time;
+        EGL keeps it, since it casts shadows into the scene.
+        """
         self.build()
-        return render(self.client, camera, CAMERA.render_size, self.renderer, CAMERA.near, CAMERA.far, segmentation)
+        if self._head is not None and self.renderer == "tiny":
+            self._head.set_visible(not from_head)
+        return render(self.client, camera, self.render_size, self.renderer, CAMERA.near, CAMERA.far, segmentation)
 
 
 def passive_cameras() -> list[Camera]:

@@ -304,8 +304,9 @@ class APRAgent:
         metrics: Metrics = {}
         batch = len(grasp_batch.obs)
         fix_batch = 0 if fixation_batch is None else len(fixation_batch.obs)
-        n_grasp_gqn = min(config.gqn_batch_size, batch) if config.representation else 0
-        n_fix_gqn = min(config.gqn_fixation_batch_size, fix_batch) if config.representation else 0
+        elbo_now = config.representation and step % config.gqn_update_every == 0  # ``gqn_update_every``
+        n_grasp_gqn = min(config.gqn_batch_size, batch) if elbo_now else 0
+        n_fix_gqn = min(config.gqn_fixation_batch_size, fix_batch) if elbo_now else 0
         # Ablation: every r gets its gradient (the critics train the encoder); else only the ELBO's samples.
         grasp_grad = n_grasp_gqn if config.representation else batch
         fix_grad = n_fix_gqn if config.representation else fix_batch
@@ -398,7 +399,7 @@ class APRAgent:
 
         values = torch.stack([v.float() for v in metrics.values()]).tolist()  # one sync
         result = dict(zip(metrics.keys(), values, strict=True))
-        if "gqn" in self.optimizers:
+        if "gqn/elbo_loss" in result:
             result["gqn/sigma"] = pixel_sigma(step, self.config)
             result["gqn/lr"] = gqn_learning_rate(step, self.config)
         return result

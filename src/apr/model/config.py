@@ -68,6 +68,10 @@ class ModelConfig:
     (Eslami et al. 2018: batch 36)."""
     gqn_fixation_batch_size: int = 4
     """Fixation observations added to the ELBO batch (ours: ~1 fixation view per 9 grasp views)."""
+    gqn_update_every: int = 1
+    """The ELBO trains the encoder and generator on every this-many-th joint update, the SAC losses on every one
+    (ours; the paper trains both on every step; 2 in the CPU presets, where the ELBO is ~45% of an update's cost:
+    docs/decisions.md)."""
 
     # --- policy heads (paper, Method B) ---
     head_channels: tuple[int, ...] = (128, 64, 32)

@@ -69,7 +69,8 @@ class Frame:
     """"start" (after reset), "fixation" (after the fixation action) or "grasp" (after a grasp step)."""
     grasp_steps: int
     raw_views: list[np.ndarray]
-    """The three raw 256x256 renders (RGB, plus the target mask with environment-selected targets)."""
+    """The three raw renders (``render_size`` square; RGB, plus the target mask with environment-selected
+    targets)."""
     observation: dict[str, Any]
     """The observation the policy saw: images (3, 64, 64, C), viewpoints, gripper."""
 

@@ -115,7 +115,8 @@ def _save(figure: Figure, path: Path) -> Path:
 
 # ------------------------------------------------------------------------------------------------ Figure 1
 def logpolar_figure(raw_view: np.ndarray, provenance: str) -> tuple[Figure, str]:
-    """The raw 256x256 view beside its log-polar 64x64 sample (and the target mask, when it has one)."""
+    """The raw view (256x256 at the paper's render size) beside its log-polar 64x64 sample (and the target mask,
+    when it has one)."""
     sample = foveate(raw_view, "logpolar", 64)
     with_mask = raw_view.shape[-1] == 4
     figure = Figure(layout="constrained", figsize=(6.4, 6.4 if with_mask else 3.6))
@@ -220,7 +221,7 @@ def _font(size: int) -> ImageFont.ImageFont | ImageFont.FreeTypeFont:
 
 
 def episode_frames(records: Sequence[EpisodeRecord], policy_label: str, hold: int = 3) -> list[np.ndarray]:
-    """GIF frames: a caption band over the raw view 0 (256x256) and the policy's three 64x64 inputs (x2), with
+    """GIF frames: a caption band over the raw view 0 (shown at 256x256) and the policy's three 64x64 inputs (x2), with
     the target mask of view 0 in the fourth cell when the inputs carry one."""
     font = _font(11)
     frames = []
@@ -233,7 +234,7 @@ def episode_frames(records: Sequence[EpisodeRecord], policy_label: str, hold: in
             if views.shape[-1] == 4:
                 fourth = np.repeat(upscale(views[0][..., 3:], 128), 3, axis=-1)
             grid = np.concatenate([np.concatenate(inputs[:2], axis=1), np.concatenate([inputs[2], fourth], axis=1)])
-            picture = np.concatenate([rgb(frame.raw_views[0]), grid], axis=1)
+            picture = np.concatenate([upscale(rgb(frame.raw_views[0]), grid.shape[0]), grid], axis=1)
             status = record.outcome if last else f"{frame.phase}, grasp step {frame.grasp_steps}"
             caption = [
                 textwrap.shorten(policy_label, 92),

@@ -57,11 +57,14 @@ class EnvConfig:
     reach_scale: float = 10.0
     """Reach reward per metre of progress toward the fixation point (ours; the paper gives no formula). At 1.0
     the reach reward (at most ~0.06 a step) is drowned by SAC's entropy bonus: docs/decisions.md."""
+    render_size: int = 256
+    """Side of each render before the warp to 64x64, a multiple of 64 (paper: 256; the CPU presets: 128, which
+    saves CPU time per render and blurs the warp's inner ring: docs/decisions.md)."""
 
     def make_kwargs(self, split: str) -> dict[str, Any]:
         """Keyword arguments of ``gymnasium.make(self.env_id, ...)`` for ``split``."""
         kwargs: dict[str, Any] = {"dof": self.dof, "split": split, "renderer": self.renderer,
-                                  "reach_scale": self.reach_scale}  # fmt: skip
+                                  "reach_scale": self.reach_scale, "render_size": self.render_size}  # fmt: skip
         if self.env_id == "apr/ActiveGrasp-v0":
             kwargs.update(target=self.target, foveation=self.foveation)
         return kwargs
@@ -250,6 +253,9 @@ def _field_problems(config: TrainConfig) -> list[tuple[str, str]]:
         if item.name not in ("env", "model"):
             number(item.name, getattr(config, item.name), 1 if item.name in AT_LEAST_ONE else 0)
     number("env.reach_scale", config.env.reach_scale, 0.0)
+    render_size = config.env.render_size
+    if isinstance(render_size, bool) or not isinstance(render_size, int) or render_size < 64 or render_size % 64:
+        found.append(("env.render_size", f"must be a positive multiple of 64 (the paper: 256), got {render_size}"))
     model = config.model
     for item in dataclasses.fields(model):
         value, kind = getattr(model, item.name), str(item.type)
@@ -273,6 +279,14 @@ def _preset(name: str, description: str, **changes: Any) -> tuple[str, tuple[str
     return name, (description, TrainConfig(preset=name, env=env, model=model, **changes))
 
 
+CPU_RENDERING: dict[str, Any] = dict(renderer="tiny", render_size=128)
+"""How the CPU presets render (ours; the paper presets keep EGL at 256x256): TinyRenderer at 128x128 costs a
+CPU worker 35% less time per step than EGL through llvmpipe at 256 and renders bitwise reproducibly; the price is a
+blurrier inner ring of the log-polar views (docs/decisions.md, "Views and rendering"; docs/benchmarks.md)."""
+CPU_LEARNER: dict[str, Any] = dict(gqn_update_every=2, channels_last=True)
+"""How the CPU presets' learner saves time (ours): the ELBO on every second update (about 45% of a tiny update's
+cost) and channels-last convolutions (about 9% less on this CPU); docs/decisions.md, "The model"."""
+
 PRESETS: dict[str, tuple[str, TrainConfig]] = dict(
     [
         _preset("active-target", "head camera fixating the env's target, 6-DoF, log-polar, GQN (Table 1: 84%)"),
@@ -289,13 +303,14 @@ PRESETS: dict[str, tuple[str, TrainConfig]] = dict(
                 env=dict(target="learned", dof=4), total_grasps=25_000),
         _preset("cpu-4d",
                 "learns on a 2-core CPU in an hour: env target, 4-DoF, log-polar, tiny GQN, heads see g and f",
-                env=dict(dof=4), model=ModelConfig.tiny(heads_see_proprioception=True, init_temperature=0.01,
-                                                        batch_size=32, gqn_batch_size=8),
+                env=dict(dof=4, **CPU_RENDERING),
+                model=ModelConfig.tiny(heads_see_proprioception=True, init_temperature=0.01, batch_size=32,
+                                       gqn_batch_size=8, **CPU_LEARNER),
                 total_grasps=5_000, max_train_minutes=60.0, workers=2, random_grasps=50, updates_per_step=1.0,
                 replay_capacity=30_000, eval_every_grasps=200, eval_episodes=30, final_eval_episodes=100,
                 checkpoint_every_grasps=200, log_every_grasps=25, image_every_grasps=500),
         _preset("smoke", "tiny sizes, a few grasps: the whole pipeline in about a minute on a CPU",
-                env=dict(target="learned", dof=4), model=ModelConfig.tiny(),
+                env=dict(target="learned", dof=4, **CPU_RENDERING), model=ModelConfig.tiny(**CPU_LEARNER),
                 total_grasps=8, workers=2, random_grasps=2, updates_per_step=0.25, replay_capacity=2_000,
                 eval_every_grasps=4, eval_episodes=2, checkpoint_every_grasps=4, log_every_grasps=2,
                 image_every_grasps=4),

@@ -83,6 +83,8 @@ class Progress:
     """(success, attempted, reach return) of the last episodes."""
     loss_sums: dict[str, float] = field(default_factory=dict)
     loss_count: int = 0
+    loss_counts: dict[str, int] = field(default_factory=dict)
+    """Updates that reported each metric since the last log (the ELBO's skip updates with ``gqn_update_every``)."""
 
     @property
     def train_s(self) -> float:
@@ -380,6 +382,7 @@ class Trainer:
             progress.loss_count += 1
             for name, value in metrics.items():
                 progress.loss_sums[name] = progress.loss_sums.get(name, 0.0) + value
+                progress.loss_counts[name] = progress.loss_counts.get(name, 0) + 1
         progress.learner_s += time.perf_counter() - started
         if not ready:
             progress.update_debt = 0.0  # no debt builds up during warm-up
@@ -483,8 +486,9 @@ class Trainer:
             if value != "" and name != "grasps":
                 self.writer.add_scalar(f"run/{name}", float(value), progress.grasps)
         for name, total in progress.loss_sums.items():
-            self.writer.add_scalar(name, total / max(progress.loss_count, 1), progress.grasps)
-        progress.loss_sums, progress.loss_count = {}, 0
+            self.writer.add_scalar(name, total / max(progress.loss_counts.get(name, progress.loss_count), 1),
+                                   progress.grasps)  # fmt: skip
+        progress.loss_sums, progress.loss_count, progress.loss_counts = {}, 0, {}
 
     def _log_images(self) -> None:
         """The last stored observation's three views and, with a generator, its prediction of view 2."""

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing
+import os
 import signal
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
@@ -18,6 +19,10 @@ import gymnasium as gym
 
 MAX_FAILURES_IN_A_ROW = 5
 """A worker that fails this many times without one good answer between stops the run: it is not bad luck."""
+WORKER_NICENESS = 10
+"""Environment processes run at this lower scheduling priority (``os.nice``): where workers and the learner share
+cores, the learner, whose updates every round waits for, gets its core first and the workers the rest
+(docs/benchmarks.md, "Training speed")."""
 RECYCLE_EVERY_RESETS = 1_000
 """A worker is replaced by a fresh process after this many episodes. pybullet keeps memory of the bodies it
 removes (and EGL their GPU memory, bullet3 #1867): a worker's RSS grows by about 0.3 MiB per episode, with either
@@ -56,6 +61,7 @@ class _Worker:
 def _serve(connection: Connection, env_id: str, env_kwargs: dict[str, Any]) -> None:
     """The worker's loop: build the env, then answer commands until told to close."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the trainer's to handle
+    os.nice(WORKER_NICENESS)
     import apr  # noqa: F401  (registers the environments in this process)
 
     env = gym.make(env_id, **env_kwargs)
