@@ -302,7 +302,8 @@ PRESETS: dict[str, tuple[str, TrainConfig]] = dict(
         _preset("active-learned-4d", "learned fixation, 4-DoF (Table 1: 85% after 25K grasps)",
                 env=dict(target="learned", dof=4), total_grasps=25_000),
         _preset("cpu-4d",
-                "learns on a 2-core CPU in an hour: env target, 4-DoF, log-polar, tiny GQN, heads see g and f",
+                "learns on a 2-core CPU within its hour: env target, 4-DoF, log-polar, tiny GQN, heads see g and f, "
+                "TinyRenderer at 128",
                 env=dict(dof=4, **CPU_RENDERING),
                 model=ModelConfig.tiny(heads_see_proprioception=True, init_temperature=0.01, batch_size=32,
                                        gqn_batch_size=8, **CPU_LEARNER),
