@@ -70,7 +70,7 @@ class ModelConfig:
     """Fixation observations added to the ELBO batch (ours: ~1 fixation view per 9 grasp views)."""
     gqn_update_every: int = 1
     """The ELBO trains the encoder and generator on every this-many-th joint update, the SAC losses on every one
-    (ours; the paper trains both on every step; 2 in the CPU presets, where the ELBO is ~45% of an update's cost:
+    (ours; the paper trains both on every step; 2 in the CPU presets, where the ELBO is about half an update's cost:
     docs/decisions.md)."""
 
     # --- policy heads (paper, Method B) ---

@@ -284,7 +284,7 @@ CPU_RENDERING: dict[str, Any] = dict(renderer="tiny", render_size=128)
 CPU worker 35% less time per step than EGL through llvmpipe at 256 and renders bitwise reproducibly; the price is a
 blurrier inner ring of the log-polar views (docs/decisions.md, "Views and rendering"; docs/benchmarks.md)."""
 CPU_LEARNER: dict[str, Any] = dict(gqn_update_every=2, channels_last=True)
-"""How the CPU presets' learner saves time (ours): the ELBO on every second update (about 45% of a tiny update's
+"""How the CPU presets' learner saves time (ours): the ELBO on every second update (about half of a tiny update's
 cost) and channels-last convolutions (about 9% less on this CPU); docs/decisions.md, "The model"."""
 
 PRESETS: dict[str, tuple[str, TrainConfig]] = dict(
