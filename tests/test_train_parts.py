@@ -131,6 +131,15 @@ def test_presets_are_independent_copies():
     assert preset("active-target").env.dof == 6
 
 
+@pytest.mark.parametrize("render_size", [96, 0, 100])
+def test_a_render_size_the_foveations_cannot_sample_is_refused_by_its_flag(render_size: int):
+    config = preset("cpu-4d")
+    config.env.render_size = render_size
+    assert config.problems() == [
+        f"--env.render-size must be a positive multiple of 64 (the paper: 256), got {render_size}"
+    ]
+
+
 def test_a_replay_that_does_not_fit_is_refused(monkeypatch, tmp_path: Path):
     from apr.train import trainer
 

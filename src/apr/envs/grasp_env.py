@@ -302,11 +302,19 @@ class PassiveGraspEnv(GraspEnv):
         return [rgb for rgb, _ in rendered], [mask for _, mask in rendered], self._viewpoints.copy()
 
 
-def _check_render_size(render_size: Any) -> None:
-    """A render side the foveations can sample: a positive multiple of the 64-pixel observation."""
+def render_size_problem(render_size: Any) -> str | None:
+    """Why ``render_size`` is not a render side the foveations can sample (a positive multiple of the 64-pixel
+    observation), as the end of a sentence naming it; None when it is."""
     size = CAMERA.image_size
     if isinstance(render_size, bool) or not isinstance(render_size, int) or render_size < size or render_size % size:
-        raise ValueError(f"render_size must be a positive multiple of {size} (the paper: 256), got {render_size!r}")
+        return f"must be a positive multiple of {size} (the paper: 256), got {render_size!r}"
+    return None
+
+
+def _check_render_size(render_size: Any) -> None:
+    problem = render_size_problem(render_size)
+    if problem:
+        raise ValueError(f"render_size {problem}")
 
 
 def _check_choice(name: str, value: Any, valid: tuple) -> None:

@@ -304,7 +304,7 @@ class APRAgent:
         metrics: Metrics = {}
         batch = len(grasp_batch.obs)
         fix_batch = 0 if fixation_batch is None else len(fixation_batch.obs)
-        elbo_now = config.representation and step % config.gqn_update_every == 0  # ``gqn_update_every``
+        elbo_now = config.representation and step % config.gqn_update_every == 0
         n_grasp_gqn = min(config.gqn_batch_size, batch) if elbo_now else 0
         n_fix_gqn = min(config.gqn_fixation_batch_size, fix_batch) if elbo_now else 0
         # Ablation: every r gets its gradient (the critics train the encoder); else only the ELBO's samples.
