@@ -399,3 +399,47 @@ def test_async_vector_env_steps_with_batched_dict_actions() -> None:
         np.testing.assert_array_equal(info["grasp_steps"], [1, 1])
     finally:
         envs.close()
+
+
+# ------------------------------------------------------------------------------------ what a policy may see
+def _float_entries(obs: dict) -> np.ndarray:
+    """Every float the observation holds, flattened (images excluded: they are uint8 pictures)."""
+    return np.concatenate([np.ravel(value) for key, value in obs.items()
+                           if key != "images" and np.asarray(value).dtype.kind == "f"])  # fmt: skip
+
+
+@pytest.mark.parametrize(("env_id", "kwargs"), [pytest.param(PASSIVE, {"dof": 4}, id="passive"),
+                                                pytest.param(ACTIVE, {"dof": 4}, id="active-env")])  # fmt: skip
+def test_an_env_target_observation_holds_no_target_coordinates(make_env, env_id, kwargs) -> None:
+    env = make_env(env_id, **kwargs)
+    obs, info = env.reset(seed=3)
+    unwrapped = env.unwrapped
+    target = unwrapped.world.object_centre(unwrapped.task.target_uid)  # the simulator's answer
+    np.testing.assert_allclose(info["fixation_point"], target, atol=1e-6)  # info may say it ...
+    assert "fixation" not in obs and "fixation" not in env.observation_space.spaces  # ... the observation not
+    values = _float_entries(obs)
+    windows = np.lib.stride_tricks.sliding_window_view(values, 3)
+    assert np.abs(windows - target).max(axis=1).min() > 1e-3  # no three entries in a row are the target (to 1 mm)
+    obs, *_ = env.step(np.zeros(4, np.float32))
+    assert "fixation" not in obs
+
+
+def test_reveal_target_puts_the_simulator_target_in_the_observation(make_env) -> None:
+    env = make_env(ACTIVE, dof=4, reveal_target=True)
+    obs, _ = env.reset(seed=3)
+    unwrapped = env.unwrapped
+    np.testing.assert_allclose(obs["fixation"], unwrapped.world.object_centre(unwrapped.task.target_uid), atol=1e-6)
+    assert env.observation_space.contains(obs)
+    with pytest.raises(ValueError, match="reveal_target needs target='env'"):
+        ActiveGraspEnv(target="learned", reveal_target=True)
+
+
+def test_a_learned_fixation_observes_the_point_it_chose_and_info_the_objects(dict_env) -> None:
+    obs, info = dict_env.reset(seed=0)
+    np.testing.assert_allclose(obs["fixation"], [0.55, 0.0, -0.15], atol=1e-6)  # the bin centre, not an object
+    centres = info["object_centres"]
+    assert centres.shape == (info["num_objects"], 3)
+    obs, _, _, _, info = dict_env.step({"fixation": np.zeros(3, np.float32), "grasp": np.zeros(6, np.float32)})
+    np.testing.assert_allclose(obs["fixation"], info["fixation_point"], atol=1e-6)
+    nearest = np.linalg.norm(info["object_centres"] - info["fixation_point"], axis=1).min()
+    assert info["fixation_object_distance"] == pytest.approx(nearest, abs=1e-6)

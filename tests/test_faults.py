@@ -331,7 +331,7 @@ def test_contradictory_env_flags_are_refused_by_name_and_a_presets_own_values_ar
 
     monkeypatch.setattr(trainer, "Trainer", Recorder)
     runs = tmp_path / "runs"
-    passive = ["train", "--preset", "cpu-4d", "--runs-dir", str(runs), "--env.env-id", "apr/PassiveGrasp-v0"]
+    passive = ["train", "--preset", "active-target", "--runs-dir", str(runs), "--env.env-id", "apr/PassiveGrasp-v0"]
     for flag, value in (("--env.target", "learned"), ("--env.foveation", "logpolar")):
         with pytest.raises(SystemExit) as refused:
             main([*passive, flag, value])
@@ -340,7 +340,7 @@ def test_contradictory_env_flags_are_refused_by_name_and_a_presets_own_values_ar
         assert "\n" not in message
     assert not started and not runs.exists()
 
-    main(passive)  # cpu-4d's own logpolar: the passive cameras are resized, and the run says so
+    main(passive)  # active-target's own logpolar: the passive cameras are resized, and the run says so
     assert started[-1].env.foveation == "logpolar" and started[-1].resolved().env.foveation == "resize"
     for name in PRESETS:
         assert preset(name).problems() == [], name

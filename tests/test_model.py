@@ -22,6 +22,7 @@ from apr.model import (
     images_to_float,
     pixel_sigma,
 )
+from apr.model.agent import proximity_reward
 
 
 def random_observation(batch: int, channels: int, rng: np.random.Generator) -> Observation:
@@ -282,15 +283,47 @@ def test_paper_generator_sizes() -> None:
     assert generator.write.stride == (4, 4) and generator.to_image.out_channels == 4
 
 
-def test_heads_that_see_the_proprioception_read_the_gripper_and_the_fixation_point() -> None:
-    """With the flag, moving only g or f changes the actor's action and the critics' Q; without it, neither does
-    (the encoder's r is the same: only the heads' input differs)."""
-    for proprioception in (False, True):
-        agent = APRAgent(ModelConfig.tiny(heads_see_proprioception=proprioception))
-        obs = random_batches(agent.config)[0].obs
-        moved = Observation(obs.images, obs.viewpoints, obs.gripper, obs.fixation + 0.3)
-        with torch.no_grad():
-            r = agent._scene(obs, agent._first_two(len(obs)), with_grad=0)
-            actions = [agent.grasp.actor.mode(agent._head_input(r, o)) for o in (obs, moved)]
-        assert agent._head_input(r, obs).shape[1] == 16 + (15 if proprioception else 0)
-        assert torch.equal(actions[0], actions[1]) != proprioception
+@pytest.mark.parametrize(("gripper", "fixation"), [(False, False), (True, False), (True, True), (False, True)])
+def test_heads_read_the_gripper_and_the_fixation_point_only_when_told(gripper: bool, fixation: bool) -> None:
+    """Moving only f changes the actor's action iff the heads see f; moving only g iff they see g or f - tip (the
+    encoder's r is the same: only the heads' input differs)."""
+    agent = APRAgent(ModelConfig.tiny(heads_see_proprioception=gripper, heads_see_fixation=fixation))
+    obs = random_batches(agent.config)[0].obs
+    moved_f = Observation(obs.images, obs.viewpoints, obs.gripper, obs.fixation + 0.3)
+    moved_g = Observation(obs.images, obs.viewpoints, obs.gripper + 0.3, obs.fixation)
+    with torch.no_grad():
+        r = agent._scene(obs, agent._first_two(len(obs)), with_grad=0)
+        actions = [agent.grasp.actor.mode(agent._head_input(r, o)) for o in (obs, moved_f, moved_g)]
+    assert agent._head_input(r, obs).shape[1] == 16 + 9 * gripper + 6 * fixation
+    assert torch.equal(actions[0], actions[1]) != fixation
+    assert torch.equal(actions[0], actions[2]) != (gripper or fixation)
+
+
+def test_the_proximity_reward_of_known_points() -> None:
+    """Objects at the workspace box's centre and corner: the action 0 (the centre) earns 1, a point 7.5 cm from
+    the nearest object 0.5, one farther than the radius 0; a scene without objects pays nothing."""
+    low, high = np.array([0.38, -0.2, -0.2]), np.array([0.75, 0.2, -0.05])  # the ActiveGraspEnv docstring's box
+    centre = (low + high) / 2
+    centres = torch.tensor(np.array([[centre, high, [np.nan] * 3]]), dtype=torch.float32)  # (1, 3, 3), a NaN pad
+    offset = 0.075 / ((high[0] - low[0]) / 2)  # 7.5 cm along x, in action units
+    actions = torch.tensor([[[0.0, 0.0, 0.0], [offset, 0.0, 0.0], [-1.0, -1.0, -1.0]]])
+    reward = proximity_reward(actions, centres, radius=0.15)
+    np.testing.assert_allclose(reward.numpy(), [[1.0, 0.5, 0.0]], atol=1e-5)
+    empty = torch.full((1, 2, 3), float("nan"))
+    assert proximity_reward(actions, empty, 0.15).abs().sum() == 0
+
+
+def test_relabelled_bandit_targets_pair_uniform_actions_with_their_proximity() -> None:
+    agent = APRAgent(ModelConfig.tiny(fixation_reward="proximity", fixation_relabels=5))
+    _, fixation = random_batches(agent.config)
+    fixation.object_centres = torch.tensor([[[0.55, 0.0, -0.15]]]).expand(len(fixation.action), 1, 3)
+    actions, rewards = agent._bandit_targets(fixation)
+    assert actions.shape == (len(fixation.action), 6, 3) and rewards.shape == (len(fixation.action), 6)
+    assert torch.equal(actions[:, 0], fixation.action)  # the chosen action first, then the relabelled ones
+    assert actions[:, 1:].abs().max() <= 1 and actions[:, 1:].std() > 0.3
+    np.testing.assert_allclose(rewards, proximity_reward(actions, fixation.object_centres, 0.15))
+    losses, _ = agent.compute_losses(*random_batches(agent.config)[:1], fixation, step=0)
+    assert torch.isfinite(losses["fixation/critic"])
+    grasp_only = APRAgent(ModelConfig.tiny())
+    actions, rewards = grasp_only._bandit_targets(fixation)
+    assert torch.equal(actions[:, 0], fixation.action) and torch.equal(rewards[:, 0], fixation.reward)

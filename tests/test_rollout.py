@@ -14,7 +14,8 @@ class ScriptedPool:
     """A pool of toy environments that answers at once and logs every call.
 
     Worker ``w``'s episode with seed ``s`` lasts ``1 + s % 5`` grasp steps; each observation's ``gripper`` holds
-    (seed, step), so a policy that reads it is a pure function of the episode's state.
+    (seed, step), so a policy that reads it is a pure function of the episode's state, and its images hold
+    (seed, step, fixation pending) in their three channels: whose scene, at which step, in which phase.
     """
 
     def __init__(self, size: int, learned_fixation: bool = False):
@@ -30,7 +31,9 @@ class ScriptedPool:
         seed, steps, _ = self.state[worker]
         gripper = np.zeros(9, np.float32)
         gripper[:2] = seed, steps
-        return {"images": np.zeros((3, 2, 2, 3), np.uint8), "viewpoints": np.zeros((3, 6), np.float32),
+        images = np.zeros((3, 2, 2, 3), np.uint8)
+        images[..., 0], images[..., 1], images[..., 2] = seed, steps, self.state[worker][2]  # whose, when, phase
+        return {"images": images, "viewpoints": np.zeros((3, 6), np.float32),
                 "gripper": gripper, "fixation": np.zeros(3, np.float32)}  # fmt: skip
 
     def send_reset(self, index: int, seed: int) -> None:
@@ -107,3 +110,47 @@ def test_learned_fixation_starts_with_the_fixation_step_of_every_worker():
     results = run_round(pool, [0, 1], policy, 4, True)
     assert phases == ["fixation", "grasp", "grasp"]  # seed 0: 1 grasp step, seed 1: 2
     assert [r.grasp_steps for r in results] == [1, 2]
+
+
+@pytest.mark.parametrize("blind", ["", "fixation", "grasp", "both"])
+def test_a_blind_round_shows_each_episode_its_partners_images_in_the_blind_phases_only(blind: str):
+    """Episodes are paired (0 with 1, 2 with 3); in a blind phase an episode's images are its partner's, of the
+    same phase, at the same step or, once the partner has ended, at its last step; all else stays its own."""
+    seeds = [0, 3, 7, 1]  # 1, 4, 3 and 2 grasp steps
+    seen: list[tuple[str, np.ndarray, np.ndarray]] = []
+
+    def policy(observations: dict[str, np.ndarray], phase: str) -> np.ndarray:
+        seen.append((phase, observations["images"][:, 0, 0, 0, 0].copy(), observations["gripper"][:, :2].copy()))
+        return pure_policy(observations, phase)
+
+    results = run_round(ScriptedPool(4, learned_fixation=True), seeds, policy, 4, True, blind=blind)
+    blind_phases = {"": (), "fixation": ("fixation",), "grasp": ("grasp",), "both": ("fixation", "grasp")}[blind]
+    assert [r.grasp_steps for r in results] == [1, 4, 3, 2]  # the policy reads the gripper: episodes play alike
+    partner = {0: 3, 3: 0, 7: 1, 1: 7}
+    for phase, image_seeds, gripper in seen:
+        own = gripper[:, 0].astype(int)
+        expected = [partner[s] for s in own] if phase in blind_phases else own.tolist()
+        assert image_seeds.tolist() == expected, (phase, gripper)
+    assert seen[0][0] == "fixation" and all(phase == "grasp" for phase, *_ in seen[1:])
+
+
+def test_a_blind_episode_whose_partner_ended_sees_the_partners_last_images_of_its_phase():
+    pool = ScriptedPool(2, learned_fixation=True)
+    seen: list[np.ndarray] = []
+
+    def policy(observations: dict[str, np.ndarray], phase: str) -> np.ndarray:
+        seen.append(observations["images"][:, 0, 0, 0].copy())  # (seed, step, fixation pending) of each input
+        return pure_policy(observations, phase)
+
+    run_round(pool, [0, 3], policy, 4, True, blind="grasp")  # seed 0 ends after 1 grasp step, seed 3 after 4
+    # grasp step 1: each sees the other's post-fixation images (step 0, the grasp phase: nothing pending)
+    assert seen[1].tolist() == [[3, 0, 0], [0, 0, 0]]
+    # steps 2-4: seed 3 alone, shown seed 0's last images before its grasp (its post-fixation view)
+    assert [images.tolist() for images in seen[2:]] == [[[0, 0, 0]]] * 3
+
+
+def test_a_blind_round_refuses_an_odd_number_of_episodes_and_an_unknown_mode():
+    with pytest.raises(ValueError, match="even number of seeds"):
+        run_round(ScriptedPool(3), [1, 2, 3], pure_policy, 4, False, blind="both")
+    with pytest.raises(ValueError, match="blind must be one of"):
+        run_round(ScriptedPool(2), [1, 2], pure_policy, 4, False, blind="images")

@@ -115,8 +115,11 @@ def test_presets_resolve_consistently_and_round_trip(name: str):
 def test_preset_table_matches_the_paper():
     assert set(PRESETS) == {
         "active-target", "passive-target", "active-target-no-logpolar", "active-target-no-representation",
-        "active-learned-6d", "active-learned-4d", "cpu-4d", "smoke",
+        "active-learned-6d", "active-learned-4d", "cpu-4d", "cpu-learned-4d", "cpu-learned-4d-grasp-reward", "smoke",
     }  # fmt: skip
+    learned, grasp_reward = preset("cpu-learned-4d"), preset("cpu-learned-4d-grasp-reward")
+    assert learned.model.fixation_reward == "proximity" and grasp_reward.model.fixation_reward == "grasp"
+    assert learned.model.replace(fixation_reward="grasp", fixation_relabels=0) == grasp_reward.model  # one change
     assert preset("passive-target").env.env_id == "apr/PassiveGrasp-v0"
     assert preset("active-target-no-logpolar").env.foveation == "resize"
     assert preset("active-target-no-representation").model.representation is False

@@ -81,6 +81,20 @@ def test_a_run_records_its_renderer_and_apr_eval_refuses_images_of_another(unint
     assert result["episodes"] == 1 and result["renderer"] == "tiny" and result["trained_renderer"] == "egl"
 
 
+def test_apr_eval_blind_pairs_the_episodes_and_says_where_the_policy_looked(uninterrupted: Path, tmp_path: Path,
+                                                                             capsys):  # fmt: skip
+    out = tmp_path / "blind.json"
+    main(["eval", str(uninterrupted), "--episodes", "1", "--blind", "fixation", "--json", str(out)])
+    result = json.loads(out.read_text())
+    assert result["blind"] == "fixation" and result["episodes"] == 2  # a pair: each sees the other's scene
+    assert [o["seed"] for o in result["outcomes"]] == [2_000_000_000, 2_000_000_001]
+    stats = result["fixation"]
+    assert stats["scenes"] == 2 and stats["fixed_median_cm"] > 0 and stats["uniform_median_cm"] > 0
+    assert all(0 <= o["fixation_object_distance"] < 1 for o in result["outcomes"])
+    printed = capsys.readouterr().out
+    assert "another scene's images in the fixation phase" in printed and "fixation: median" in printed
+
+
 def test_same_seed_gives_identical_metrics(uninterrupted: Path, tmp_path: Path):
     again = Trainer(tiny_run(tmp_path, "again")).train()
     rows = read_metrics(uninterrupted)

@@ -9,6 +9,13 @@ one resumed), then evaluates three baselines on the same held-out episodes (the 
   it, then straight down (environment-selected targets only): the ceiling a reach-and-descend policy can
   hope for.
 
+and, for every run's final policy, the blind baselines on the same episodes: the policy given, in place of its
+own images, those of another episode (another scene) in the fixation phase only (does the choice of where to
+look use vision?), in the grasp phase only (does grasping?), or in both. A policy that grasps from what it sees
+loses most of its success blind. With a learned fixation each evaluation also says where the chosen points lay
+(median distance to the nearest object, spread), beside one fixed point in the middle of the drop area and
+uniformly random points.
+
 It writes ``OUT/curve.csv`` (every evaluation of every run: grasps, training minutes, success and its 95%
 Wilson interval), ``OUT/baselines.json``, ``OUT/curve.png`` (success against grasps and against training
 minutes) and ``OUT/summary.md``, and prints grasps per minute, updates per second and where the time went.
@@ -26,6 +33,9 @@ from typing import Literal
 import numpy as np
 
 BASELINES = ("untrained", "random", "scripted")
+BLIND_MODES = {True: ("fixation", "grasp", "both"), False: ("both",)}
+"""Blind evaluations of a final policy, by whether it has a learned fixation (with an env target there is no
+fixation phase: "both" is every step)."""
 CURVE_COLUMNS = ("run", "seed", "grasps", "updates", "train_minutes", "episodes", "successes", "success_rate",
                  "ci_low", "ci_high", "final")  # fmt: skip
 
@@ -79,11 +89,20 @@ def run(args: LearningBenchArgs) -> None:
             _train(dataclasses.replace(config, seed=seed, runs_dir=runs_dir, run_name=run_dir.name), run_dir)
     episodes = args.baseline_episodes or config.final_eval_episodes or config.eval_episodes
     baselines = _baselines(config.resolved(), episodes, args.out / "baselines.json")
+    blind = {}
+    for run_dir in run_dirs:
+        if _final_eval(run_dir) is None:
+            continue
+        if not any((run_dir / "checkpoints").glob("checkpoint_*.pt")):
+            print(f"{run_dir.name}: no checkpoint kept, so no blind baselines")
+            continue
+        blind[run_dir.name] = _blind(run_dir, episodes, config.eval_workers or config.workers,
+                                     args.out / "baselines.json")  # fmt: skip
     curve = [row for run_dir in run_dirs if run_dir.exists() for row in _curve_rows(run_dir)]
     _write_csv(args.out / "curve.csv", curve)
     timings = [_timing(run_dir) for run_dir in run_dirs if (run_dir / "metrics.csv").exists()]
-    _plot(args.out / "curve.png", args.preset, curve, baselines)
-    summary = _summary(args, curve, baselines, timings)
+    _plot(args.out / "curve.png", args.preset, curve, baselines, blind)
+    summary = _summary(args, curve, baselines, blind, timings)
     (args.out / "summary.md").write_text(summary)
     print(summary)
 
@@ -118,28 +137,72 @@ def _baselines(config, episodes: int, path: Path) -> dict[str, dict]:
 
     env = config.env
     key = json.dumps({"env": dataclasses.asdict(env), "episodes": episodes, "preset": config.preset}, sort_keys=True)
-    if path.exists():
-        cached = json.loads(path.read_text())
-        if cached.get("key") == key:
-            return cached["results"]
+    cached = _read_json(path)
+    if cached.get("key") == key:
+        return cached["results"]
     dof = env.dof
     uniform = random_policy(dof, np.random.default_rng(0))
 
-    def scripted_policy(observations, phase):
+    def scripted_policy(observations, phase):  # reads the simulator's answer: its env reveals the target
         return scripted_grasp_actions(observations["fixation"], observations["gripper"][:, :3], dof)
 
     workers = config.eval_workers
     policies = {"untrained": lambda: evaluate(new_agent(config), env, episodes, "test", workers),
                 "random": lambda: evaluate_policy(uniform, env, episodes, "test", workers)}  # fmt: skip
     if not env.learned_fixation:
-        policies["scripted"] = lambda: evaluate_policy(scripted_policy, env, episodes, "test", workers)
+        revealed = dataclasses.replace(env, reveal_target=True)
+        policies["scripted"] = lambda: evaluate_policy(scripted_policy, revealed, episodes, "test", workers)
     results = {}
     for name, run_baseline in policies.items():
         print(f"baseline {name}: {episodes} held-out episodes ...", flush=True)
         results[name] = run_baseline().to_dict()
         results[name].pop("outcomes")
         print(f"baseline {name}: {results[name]['success_rate']:.1%} ({results[name]['successes']}/{episodes})")
-    path.write_text(json.dumps({"key": key, "results": results}, indent=2))
+    _update_json(path, key=key, results=results, blind={})  # new baselines: the blind results are redone too
+    return results
+
+
+def _read_json(path: Path) -> dict:
+    return json.loads(path.read_text()) if path.exists() else {}
+
+
+def _update_json(path: Path, **sections: object) -> None:
+    """Replace some top-level sections of the JSON file ``path`` (written atomically), keeping the others."""
+    content = _read_json(path)
+    content.update(sections)
+    temporary = path.with_name(path.name + ".tmp")
+    temporary.write_text(json.dumps(content, indent=2))
+    temporary.replace(path)
+
+
+def _blind(run_dir: Path, episodes: int, workers: int, path: Path) -> dict[str, dict]:
+    """The run's newest policy evaluated blind in each of its modes (:data:`BLIND_MODES`) on ``episodes``
+    held-out episodes, and its own-image evaluation beside them ("own"); cached in the "blind" section of ``path``
+    (``baselines.json``) per run and grasps."""
+    from apr.reproduce.policies import load_run
+    from apr.train.evaluation import evaluate
+
+    cache = _read_json(path).get("blind", {})
+    snapshot = load_run(run_dir)
+    key = f"{snapshot.grasps}:{episodes}"
+    if cache.get(run_dir.name, {}).get("key") == key:
+        return cache[run_dir.name]["results"]
+    env = snapshot.config.env
+    results = {}
+    for mode in ("", *BLIND_MODES[env.learned_fixation]):
+        name = mode or "own"
+        where = "every phase" if mode in ("", "both") else f"the {mode} phase"
+        whose = "another scene's" if mode else "its own"
+        print(f"{run_dir.name} at {snapshot.grasps} grasps, {whose} images in {where}: {episodes} held-out "
+              "episodes ...", flush=True)  # fmt: skip
+        result = evaluate(snapshot.agent, env, episodes, "test", workers, trained_renderer=snapshot.renderer,
+                          blind=mode).to_dict()  # fmt: skip
+        result.pop("outcomes")
+        results[name] = result
+        print(f"{run_dir.name}, {name}: {result['success_rate']:.1%} ({result['successes']}/{result['episodes']})")
+    results["own"]["grasps"] = snapshot.grasps
+    cache[run_dir.name] = {"key": key, "results": results}
+    _update_json(path, blind=cache)
     return results
 
 
@@ -183,7 +246,10 @@ def _timing(run_dir: Path) -> dict:
     }  # fmt: skip
 
 
-def _plot(path: Path, preset: str, curve: list[dict], baselines: dict[str, dict]) -> None:
+BLIND_MARKERS = {"fixation": "^", "grasp": "v", "both": "x"}
+
+
+def _plot(path: Path, preset: str, curve: list[dict], baselines: dict[str, dict], blind: dict[str, dict]) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -203,6 +269,10 @@ def _plot(path: Path, preset: str, curve: list[dict], baselines: dict[str, dict]
             low, high = np.array([row["ci_low"] for row in rows]), np.array([row["ci_high"] for row in rows])
             line = axis.plot(x, y, marker="o", label=f"{run} (held-out)")[0]
             axis.fill_between(x, low, high, color=line.get_color(), alpha=0.15)
+            for mode, result in blind.get(run, {}).items():
+                if mode in BLIND_MARKERS:  # at the end of the run, where its final policy was evaluated blind
+                    axis.plot(x[-1], result["success_rate"], BLIND_MARKERS[mode], color=line.get_color(),
+                              markersize=9, label=f"{run}, another scene's images ({mode})")  # fmt: skip
         for name, result in baselines.items():
             axis.axhline(result["success_rate"], color=colours[name], linestyle="--",
                          label=f"{name}: {result['success_rate']:.0%} ({result['episodes']} ep.)")  # fmt: skip
@@ -217,7 +287,8 @@ def _plot(path: Path, preset: str, curve: list[dict], baselines: dict[str, dict]
     plt.close(figure)
 
 
-def _summary(args: LearningBenchArgs, curve: list[dict], baselines: dict[str, dict], timings: list[dict]) -> str:
+def _summary(args: LearningBenchArgs, curve: list[dict], baselines: dict[str, dict], blind: dict[str, dict],
+             timings: list[dict]) -> str:  # fmt: skip
     from apr.machine import machine_description
 
     lines = [f"# apr bench learning: {args.preset}", "",
@@ -236,6 +307,7 @@ def _summary(args: LearningBenchArgs, curve: list[dict], baselines: dict[str, di
     for name, result in baselines.items():
         lines.append(f"| {name} | {result['success_rate']:.1%} | {result['ci_low']:.1%}-{result['ci_high']:.1%} | "
                      f"{result['attempts']} | {result['episodes']} |")  # fmt: skip
+    lines += _blind_lines(blind)
     lines += ["", "## Throughput and where the training time went", "",
               "| run | grasps | updates | training min | eval min | grasps/min | updates/s | env and waiting | "
               "learner | acting |", "|" + " --- |" * 10]  # fmt: skip
@@ -250,3 +322,27 @@ def _summary(args: LearningBenchArgs, curve: list[dict], baselines: dict[str, di
         "",
     ]
     return "\n".join(lines)
+
+
+def _blind_lines(blind: dict[str, dict]) -> list[str]:
+    """The summary's section on the blind baselines and, with a learned fixation, where the policies looked."""
+    if not blind:
+        return []
+    rate = lambda result: f"{result['success_rate']:.1%}" if result else "-"  # noqa: E731
+    lines = ["", "## Blind baselines: each final policy given another scene's images, same episodes", "",
+             "| run | grasps | own images | other scene's in the fixation phase | in the grasp phase | in both | "
+             "episodes |", "|" + " --- |" * 7]  # fmt: skip
+    for run, results in blind.items():
+        own = results["own"]
+        lines.append(f"| {run} | {own.get('grasps', '')} | {rate(own)} | {rate(results.get('fixation'))} | "
+                     f"{rate(results.get('grasp'))} | {rate(results.get('both'))} | {own['episodes']} |")  # fmt: skip
+    looked = {run: results["own"]["fixation"] for run, results in blind.items() if results["own"].get("fixation")}
+    if looked:
+        lines += ["", "## Where the fixation policies looked (held-out scenes, own images)", "",
+                  "| run | median distance to the nearest object | spread x, y | one fixed point (bin centre) | "
+                  "uniformly random points |", "|" + " --- |" * 5]  # fmt: skip
+        for run, stats in looked.items():
+            lines.append(f"| {run} | {stats['median_cm']:.1f} cm | {stats['spread_x_cm']:.1f}, "
+                         f"{stats['spread_y_cm']:.1f} cm | {stats['fixed_median_cm']:.1f} cm | "
+                         f"{stats['uniform_median_cm']:.1f} cm |")  # fmt: skip
+    return lines

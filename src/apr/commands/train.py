@@ -143,6 +143,10 @@ class EvalArgs:
     renderer: Literal["trained", "auto", "egl", "tiny"] = "trained"
     """trained: the renderer the checkpoint's policy was trained with (refused where it cannot serve here); auto,
     egl or tiny: that one, with a warning when the policy was trained on the other (its images differ)."""
+    blind: Literal["", "fixation", "grasp", "both"] = ""
+    """Show the policy another episode's images (another scene) in place of its own: in the fixation phase, the
+    grasp phase or both (a blind baseline; with an environment target there is no fixation phase). Episodes are
+    paired, so an odd --episodes is rounded up."""
 
 
 def eval_checkpoint(path: Path) -> tuple[Path, dict]:
@@ -192,6 +196,9 @@ def evaluate(args: EvalArgs) -> None:
     ])  # fmt: skip
     checkpoint, state = eval_checkpoint(args.path)
     config = TrainConfig.from_json(state["config"])
+    if args.blind == "fixation" and not config.env.learned_fixation:
+        raise SystemExit("apr eval: error: --blind fixation needs a learned fixation; this policy's environment picks "
+                         "the target (it has no fixation phase): use --blind grasp or both")  # fmt: skip
     trained = state.get("renderer", "")
     if not trained:
         print(f"{checkpoint.name} does not record the renderer it was trained with (written before apr recorded "
@@ -203,13 +210,21 @@ def evaluate(args: EvalArgs) -> None:
     mismatch = "refuse" if args.renderer == "trained" else "warn"
     try:
         result = run_evaluation(agent, env, args.episodes, args.split, args.workers or config.workers,
-                                trained_renderer=trained, on_mismatch=mismatch)  # fmt: skip
+                                trained_renderer=trained, on_mismatch=mismatch, blind=args.blind)  # fmt: skip
     except RendererMismatch as refused:
         where = EGL_INSTALL if refused.trained == "egl" else f"evaluate where {refused.trained} serves"
         raise SystemExit(f"apr eval: error: {refused}. To measure the policy on its own images, {where}; or give "
                          f"--renderer {refused.actual} to evaluate it on these anyway") from None  # fmt: skip
+    phases = {"": "", "both": "every phase", "fixation": "the fixation phase", "grasp": "the grasp phase"}
+    blind = f"; another scene's images in {phases[args.blind]}" if args.blind else ""
     summary = (f"{checkpoint}: {result.success_rate:.1%} success on {result.episodes} {args.split} episodes "
-               f"(95% CI {result.ci_low:.1%}-{result.ci_high:.1%}; renderer {result.renderer})")  # fmt: skip
+               f"(95% CI {result.ci_low:.1%}-{result.ci_high:.1%}; renderer {result.renderer}{blind})")  # fmt: skip
+    if result.fixation:
+        stats = result.fixation
+        summary += (f"\nfixation: median {stats['median_cm']:.1f} cm from the nearest object (one fixed point: "
+                    f"{stats['fixed_median_cm']:.1f} cm, uniformly random points: "
+                    f"{stats['uniform_median_cm']:.1f} cm), spread {stats['spread_x_cm']:.1f} x "
+                    f"{stats['spread_y_cm']:.1f} cm")  # fmt: skip
     print(summary)
     if args.json:
         payload = {**result.to_dict(), "checkpoint": str(checkpoint), "grasps": state["progress"]["grasps"],

@@ -60,6 +60,9 @@ class ObjectSpec:
     tray_inner_x: tuple[float, float] = (0.36, 0.92)
     tray_inner_y: tuple[float, float] = (-0.23, 0.35)
     """ours: an object whose base is outside this xy box after settling has fallen out of the tray."""
+    tray_floor_z_min: float = -0.3
+    """ours: an object whose base is below this z after settling (or whose bounding box is not finite) has fallen
+    through the tray floor (about 1 drop in 1000 of the training objects)."""
     park_position: Vec3 = (0.0, 0.0, -50.0)
     """ours: where unused objects of the pool wait (static, collision-free, out of every view)."""
     pool_size: int = 8

@@ -27,7 +27,8 @@ class GraspEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
 
     def __init__(self, *, dof: int, target: str, foveation: str, split: str, renderer: str,
-                 render_mode: str | None, with_head: bool, reach_scale: float, render_size: int):  # fmt: skip
+                 render_mode: str | None, with_head: bool, reach_scale: float, render_size: int,
+                 reveal_target: bool):  # fmt: skip
         _check_choice("dof", dof, DOFS)
         _check_render_size(render_size)
         _check_choice("foveation", foveation, FOVEATIONS)
@@ -36,6 +37,9 @@ class GraspEnv(gym.Env):
         self.dof, self.foveation, self.render_mode = dof, foveation, render_mode
         self.learned_fixation = target == "learned"
         self.with_mask = target == "env"
+        if reveal_target and self.learned_fixation:
+            raise ValueError("reveal_target needs target='env': with a learned fixation there is no target to reveal")
+        self.reveal_target = bool(reveal_target)
         self.world = GraspWorld(renderer, with_head=with_head, render_size=render_size)
 
         views, size, channels = CAMERA.views_per_step, CAMERA.image_size, 4 if self.with_mask else 3
@@ -43,8 +47,9 @@ class GraspEnv(gym.Env):
             "images": spaces.Box(0, 255, (views, size, size, channels), np.uint8),
             "viewpoints": spaces.Box(-2 * np.pi, 2 * np.pi, (views, 6), np.float32),
             "gripper": spaces.Box(-2.0, 2.0, (9,), np.float32),
-            "fixation": spaces.Box(-2.0, 2.0, (3,), np.float32),
         }
+        if self.learned_fixation or self.reveal_target:
+            observation["fixation"] = spaces.Box(-2.0, 2.0, (3,), np.float32)
         grasp_action = spaces.Box(-1.0, 1.0, (dof,), np.float32)
         if self.learned_fixation:
             observation["phase"] = spaces.Discrete(2)
@@ -61,6 +66,7 @@ class GraspEnv(gym.Env):
         self._phase = GRASP_PHASE
         self._grasp_steps = 0
         self._tip_distance = 0.0
+        self._object_centres = np.zeros((0, 3))
         self._episode_over = True
         self.on_grasp_start: Callable[[GraspEnv], None] | None = None
         """Called with the env when a grasp starts, before the fingers close (e.g. to picture the pre-grasp pose)."""
@@ -72,6 +78,7 @@ class GraspEnv(gym.Env):
         self._phase = FIXATION_PHASE if self.learned_fixation else GRASP_PHASE
         self._grasp_steps = 0
         self._tip_distance = self._distance_to_fixation()
+        self._object_centres = self._centres_of_objects()
         self._episode_over = False
         return self._observation(), self._info()
 
@@ -83,6 +90,7 @@ class GraspEnv(gym.Env):
             self.fixation_point = self.task.fixation_from_action(action["fixation"])
             self._phase = GRASP_PHASE
             self._tip_distance = self._distance_to_fixation()
+            self._object_centres = self._centres_of_objects()
             return self._observation(), 0.0, False, False, self._info()
 
         grasp = action["grasp"] if self.learned_fixation else action
@@ -146,8 +154,9 @@ class GraspEnv(gym.Env):
             "images": images,
             "viewpoints": viewpoints.astype(np.float32),
             "gripper": self.world.arm.pose(),
-            "fixation": np.asarray(self.fixation_point, dtype=np.float32).copy(),
         }
+        if self.learned_fixation or self.reveal_target:
+            observation["fixation"] = np.asarray(self.fixation_point, dtype=np.float32).copy()
         if self.learned_fixation:
             observation["phase"] = self._phase
         return observation
@@ -164,7 +173,20 @@ class GraspEnv(gym.Env):
             "reach_reward": reach_reward,
             "grasp_reward": grasp_reward,
             "num_objects": len(self.world.object_uids),
+            "object_centres": self._object_centres.astype(np.float32),
+            "fixation_object_distance": self._fixation_object_distance(),
         }
+
+    def _centres_of_objects(self) -> np.ndarray:
+        """(N, 3) the centres of the objects in the tray now (m), N = ``info["num_objects"]``."""
+        return np.array([self.world.object_centre(uid) for uid in self.world.object_uids]).reshape(-1, 3)
+
+    def _fixation_object_distance(self) -> float:
+        """m from the fixation point to the nearest object centre, as the objects lay at the last reset or
+        fixation action (inf with no objects)."""
+        if not len(self._object_centres):
+            return float("inf")
+        return float(np.linalg.norm(self._object_centres - self.fixation_point, axis=1).min())
 
     def _distance_to_fixation(self) -> float:
         return float(np.linalg.norm(self.world.arm.tool_tip() - self.fixation_point))
@@ -204,6 +226,8 @@ class ActiveGraspEnv(GraspEnv):
     - ``render_size``: side of each render in pixels, a multiple of 64 (default 256, the paper's). 128 costs about
       a sixth less CPU time per render with EGL and 60% less with TinyRenderer, and blurs the warp's inner ring
       (``docs/decisions.md``, "Views and rendering").
+    - ``reveal_target``: also put the target's true centre in the observation (``fixation``; ``target="env"``
+      only). Not the robot's knowledge: for scripted baselines and the labelled ``cpu-4d`` preset.
 
     ## Action Space
     ``target="env"``: ``Box(-1, 1, (dof,), float32)``, the change of the gripper's commanded pose: position
@@ -223,9 +247,16 @@ class ActiveGraspEnv(GraspEnv):
       (``target="env"``: 255 on the target object) and 3 otherwise.
     - ``viewpoints``: float32 (3, 6), the head's six joint angles reached for each view (rad).
     - ``gripper``: float32 (9,), the tool tip (x, y, z) in m and sin/cos of the Euler angles (a, b, c).
-    - ``fixation``: float32 (3,), the point the head fixates (m): the head's own gaze command, the point where
-      the three views' lines of sight meet (the target's centre, the bin centre, or the chosen point).
+    - ``fixation`` (``target="learned"``, or ``reveal_target=True``): float32 (3,), the point the head fixates
+      (m), where the views' lines of sight meet. With a learned fixation it is what the robot chose (the bin
+      centre in the fixation phase). With the environment's target it is the target's true centre, the
+      simulator's answer, which a policy never sees: only ``reveal_target=True`` puts it here.
     - ``phase`` (``target="learned"`` only): 0 in the fixation phase, 1 in the grasp phase.
+
+    An observation holds only what the robot can know (its images, its joints and poses, the point it chose),
+    unless ``reveal_target=True``. The simulator's view of the scene is in ``info``: ``fixation_point`` (the
+    point the head fixates), ``object_centres`` (N, 3) and ``fixation_object_distance`` (m from the fixation
+    point to the nearest object centre), as the objects lay at reset or at the fixation action.
 
     ## Episode structure
     ``target="env"``: reset fixates the target; then up to 15 grasp steps. ``target="learned"``: reset shows
@@ -248,10 +279,11 @@ class ActiveGraspEnv(GraspEnv):
 
     def __init__(self, dof: int = 6, target: str = "env", foveation: str = "logpolar", split: str = "train",
                  renderer: str = "tiny", render_mode: str | None = None,
-                 reach_scale: float = REWARD.reach_scale, render_size: int = CAMERA.render_size):  # fmt: skip
+                 reach_scale: float = REWARD.reach_scale, render_size: int = CAMERA.render_size,
+                 reveal_target: bool = False):  # fmt: skip
         super().__init__(dof=dof, target=target, foveation=foveation, split=split, renderer=renderer,
                          render_mode=render_mode, with_head=True, reach_scale=reach_scale,
-                         render_size=render_size)  # fmt: skip
+                         render_size=render_size, reveal_target=reveal_target)  # fmt: skip
 
     def _render_views(self):
         head = self.world.head
@@ -273,15 +305,17 @@ class PassiveGraspEnv(GraspEnv):
     attention to any object. Renders (256x256 by default) are resized to 64x64 (no log-polar warp).
 
     ## Arguments
-    ``gymnasium.make("apr/PassiveGrasp-v0", dof=6, split="train", renderer="tiny")``, as for the active env.
+    ``gymnasium.make("apr/PassiveGrasp-v0", dof=6, split="train", renderer="tiny")``, as for the active env
+    (``reveal_target`` too).
 
     ## Action Space
     ``Box(-1, 1, (dof,), float32)``, as for ``apr/ActiveGrasp-v0`` with ``target="env"``.
 
     ## Observation Space
     ``images`` uint8 (3, 64, 64, 4) (RGB and the target mask), ``viewpoints`` float32 (3, 6) (each camera's
-    position and unit line of sight, constant), ``gripper`` float32 (9,), ``fixation`` float32 (3,) (the
-    target's centre, toward which the reach reward pays).
+    position and unit line of sight, constant), ``gripper`` float32 (9,). The target's centre, toward which
+    the reach reward pays, is not observed: the policy must find the target in the images (``info`` has it as
+    ``fixation_point``; ``reveal_target=True`` adds it as ``fixation``, for scripted baselines).
 
     ## Rewards and Episode End
     As for ``apr/ActiveGrasp-v0`` with ``target="env"``: the reach reward toward the target's centre, 1 for
@@ -290,10 +324,10 @@ class PassiveGraspEnv(GraspEnv):
 
     def __init__(self, dof: int = 6, split: str = "train", renderer: str = "tiny",
                  render_mode: str | None = None, reach_scale: float = REWARD.reach_scale,
-                 render_size: int = CAMERA.render_size):  # fmt: skip
+                 render_size: int = CAMERA.render_size, reveal_target: bool = False):  # fmt: skip
         super().__init__(dof=dof, target="env", foveation="resize", split=split, renderer=renderer,
                          render_mode=render_mode, with_head=False, reach_scale=reach_scale,
-                         render_size=render_size)  # fmt: skip
+                         render_size=render_size, reveal_target=reveal_target)  # fmt: skip
         self.cameras = passive_cameras()
         self._viewpoints = np.stack([np.concatenate([cam.eye, cam.forward]) for cam in self.cameras])
 

@@ -181,9 +181,13 @@ class GraspWorld:
                 return
 
     def _in_tray(self, uid: int) -> bool:
-        x, y, _ = self.object_position(uid)
-        return (OBJECTS.tray_inner_x[0] <= x <= OBJECTS.tray_inner_x[1]) and (
-            OBJECTS.tray_inner_y[0] <= y <= OBJECTS.tray_inner_y[1]
+        x, y, z = self.object_position(uid)
+        low, high = self.client.getAABB(uid)
+        return (
+            OBJECTS.tray_inner_x[0] <= x <= OBJECTS.tray_inner_x[1]
+            and OBJECTS.tray_inner_y[0] <= y <= OBJECTS.tray_inner_y[1]
+            and z >= OBJECTS.tray_floor_z_min
+            and bool(np.isfinite([*low, *high]).all())
         )
 
     # ------------------------------------------------------------------------------------------- object pool

@@ -20,6 +20,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from apr.envs.config import REWARD
 from apr.model.config import ModelConfig, gqn_learning_rate, pixel_sigma
 from apr.model.encoder import TowerEncoder, encode_scene, images_to_float, tile
 from apr.model.generator import ConvDRAWGenerator, gqn_elbo_loss
@@ -58,8 +59,9 @@ class Observation:
     """float32 (B, 3, 6): each view's head joint angles v."""
     gripper: torch.Tensor
     """float32 (B, 9): the gripper pose g, shared by the three views."""
-    fixation: torch.Tensor
-    """float32 (B, 3): the point the head fixates (m), shared by the three views."""
+    fixation: torch.Tensor | None = None
+    """float32 (B, 3): the point the head fixates (m), where the observation has it (a learned fixation's
+    chosen point; the revealed target of the privileged preset); None otherwise."""
 
     @classmethod
     def from_env(cls, obs: Mapping[str, Any], device: torch.device | str = "cpu") -> Observation:
@@ -68,37 +70,44 @@ class Observation:
         images = _as_tensor(obs["images"], device)
         viewpoints = _as_tensor(obs["viewpoints"], device, torch.float32)
         gripper = _as_tensor(obs["gripper"], device, torch.float32)
-        fixation = _as_tensor(obs["fixation"], device, torch.float32)
+        fixation = _as_tensor(obs["fixation"], device, torch.float32) if "fixation" in obs else None
         if images.ndim == 4:
-            images, viewpoints, gripper, fixation = images[None], viewpoints[None], gripper[None], fixation[None]
+            images, viewpoints, gripper = images[None], viewpoints[None], gripper[None]
+            fixation = None if fixation is None else fixation[None]
         return cls(images, viewpoints, gripper, fixation)
 
     def __len__(self) -> int:
         return self.images.shape[0]
 
     def __getitem__(self, index: slice | torch.Tensor) -> Observation:
-        return Observation(self.images[index], self.viewpoints[index], self.gripper[index], self.fixation[index])
+        fixation = None if self.fixation is None else self.fixation[index]
+        return Observation(self.images[index], self.viewpoints[index], self.gripper[index], fixation)
 
     def to(self, device: torch.device | str) -> Observation:
-        return Observation(self.images.to(device), self.viewpoints.to(device), self.gripper.to(device),
-                           self.fixation.to(device))  # fmt: skip
+        fixation = None if self.fixation is None else self.fixation.to(device)
+        return Observation(self.images.to(device), self.viewpoints.to(device), self.gripper.to(device), fixation)
 
     def poses(self) -> torch.Tensor:
         """(B, 3, 15): each view's (v, g), the proprioceptive input of the encoder and the generator."""
         gripper = self.gripper[:, None, :].expand(-1, self.viewpoints.shape[1], -1)
         return torch.cat([self.viewpoints, gripper], dim=-1)
 
-    def proprioception(self) -> torch.Tensor:
-        """(B, 15): g, the fixation point f and f - tip, what the policy heads see beside r when
-        ``ModelConfig.heads_see_proprioception``. Positions are in units of ``PROPRIOCEPTION_SCALE`` from
-        ``PROPRIOCEPTION_ORIGIN`` (the tool tip is g's first three entries), so that every entry varies by about
-        1, as r's channels do; in metres they would vary by ~0.1 and the heads would barely feel them."""
+    def proprioception(self, gripper: bool, fixation: bool) -> torch.Tensor:
+        """(B, 9 * gripper + 6 * fixation): g, then the fixation point f and f - tip, what the policy heads see
+        beside r (``ModelConfig.heads_see_proprioception``, ``heads_see_fixation``). Positions are in units of
+        ``PROPRIOCEPTION_SCALE`` from ``PROPRIOCEPTION_ORIGIN`` (the tool tip is g's first three entries), so that
+        every entry varies by about 1, as r's channels do; in metres they would vary by ~0.1 and the heads would
+        barely feel them."""
         origin = torch.tensor(PROPRIOCEPTION_ORIGIN, device=self.gripper.device)
         tip, angles = self.gripper[:, :3], self.gripper[:, 3:]
-        fixation = self.fixation
         scale = PROPRIOCEPTION_SCALE
-        positions = [(tip - origin) / scale, (fixation - origin) / scale, (fixation - tip) / scale]
-        return torch.cat([positions[0], angles, *positions[1:]], dim=-1)
+        parts = [(tip - origin) / scale, angles] if gripper else []
+        if fixation:
+            if self.fixation is None:
+                raise ValueError("the heads see the fixation point, but the observation has none (only a learned "
+                                 "fixation or reveal_target=True put it there)")  # fmt: skip
+            parts += [(self.fixation - origin) / scale, (self.fixation - tip) / scale]
+        return torch.cat(parts, dim=-1)
 
 
 @dataclass
@@ -125,6 +134,31 @@ class FixationBatch:
     """(B, 3) in [-1, 1]."""
     reward: torch.Tensor
     """(B,): the episode's sparse grasp reward."""
+    object_centres: torch.Tensor | None = None
+    """(B, N, 3): the objects' centres when the point was chosen (m; NaN rows pad scenes with fewer objects),
+    from the simulator: what the proximity reward is computed from, never a policy input."""
+
+
+def fixation_points(action: torch.Tensor) -> torch.Tensor:
+    """Fixation actions in [-1, 1]^3 (..., 3) -> points (m) of the workspace box, as the environment maps them
+    (:meth:`apr.envs.task.GraspTask.fixation_from_action`)."""
+    low = torch.tensor(REWARD.workspace_low, device=action.device, dtype=action.dtype)
+    high = torch.tensor(REWARD.workspace_high, device=action.device, dtype=action.dtype)
+    return low + 0.5 * (action + 1.0) * (high - low)
+
+
+def proximity_reward(action: torch.Tensor, object_centres: torch.Tensor, radius: float) -> torch.Tensor:
+    """``1 - min(d, radius) / radius``, d the distance from each action's point to the nearest object centre.
+
+    Args:
+        action: (B, K, 3) fixation actions in [-1, 1]; object_centres: (B, N, 3), NaN rows for no object.
+
+    Returns:
+        (B, K) in [0, 1]; 0 in a scene without objects.
+    """
+    offsets = fixation_points(action)[:, :, None, :] - object_centres[:, None, :, :]  # (B, K, N, 3)
+    distance = offsets.norm(dim=-1).nan_to_num(nan=float("inf")).amin(dim=-1)  # (B, K)
+    return 1.0 - distance.clamp(max=radius) / radius
 
 
 def resolve_device(name: str) -> torch.device:
@@ -238,11 +272,13 @@ class APRAgent:
         return context, query
 
     def _head_input(self, r: torch.Tensor, obs: Observation) -> torch.Tensor:
-        """What the policy heads see: r (B, R, 16, 16), with the proprioception (B, 15) tiled over its grid and
-        concatenated to its channels when ``heads_see_proprioception`` -> (B, R + 15, 16, 16)."""
-        if not self.config.heads_see_proprioception:
+        """What the policy heads see: r (B, R, 16, 16), with the proprioception (B, P) tiled over its grid and
+        concatenated to its channels (``ModelConfig.head_proprioception_dim``) -> (B, R + P, 16, 16)."""
+        config = self.config
+        if not config.head_proprioception_dim:
             return r
-        return torch.cat([r, tile(obs.proprioception().to(r.dtype), r.shape[-1])], dim=1)
+        proprioception = obs.proprioception(config.heads_see_proprioception, config.heads_see_fixation)
+        return torch.cat([r, tile(proprioception.to(r.dtype), r.shape[-1])], dim=1)
 
     def _first_two(self, batch: int) -> torch.Tensor:
         return torch.tensor([[0, 1]], device=self.device).expand(batch, 2)
@@ -366,8 +402,13 @@ class APRAgent:
             if fixation_batch is not None:
                 fix_obs = fixation_batch.obs
                 r_fix_critic = self._head_input(r_fix.detach() if config.representation else r_fix, fix_obs)
+                actions, rewards = self._bandit_targets(fixation_batch)  # (B, K, 3), (B, K)
+                samples = actions.shape[1]
                 losses["fixation/critic"], m = bandit_critic_loss(
-                    self.fixation, r_fix_critic, fixation_batch.action.float(), fixation_batch.reward.float()
+                    self.fixation,
+                    r_fix_critic.repeat_interleave(samples, dim=0) if samples > 1 else r_fix_critic,
+                    actions.flatten(0, 1).float(),
+                    rewards.flatten().float(),
                 )
                 metrics.update({f"fixation/{k}": v for k, v in m.items()})
                 r_fix_actor = self._head_input(r_fix.detach(), fix_obs)
@@ -378,6 +419,23 @@ class APRAgent:
                 )
                 metrics.update({f"fixation/{k}": v for k, v in m.items()})
         return losses, metrics
+
+    def _bandit_targets(self, batch: FixationBatch) -> tuple[torch.Tensor, torch.Tensor]:
+        """The fixation critic's (action, reward) pairs per sample: (B, K, 3) and (B, K). With the grasp reward,
+        the chosen action and the episode's reward (K = 1); with the proximity reward, the chosen action and
+        ``fixation_relabels`` uniform ones, each with the reward it would have earned in that scene."""
+        config = self.config
+        if config.fixation_reward == "grasp":
+            return batch.action[:, None], batch.reward[:, None]
+        if batch.object_centres is None:
+            raise ValueError("the proximity reward needs the fixation samples' object centres")
+        actions = batch.action[:, None].float()
+        if config.fixation_relabels:
+            shape = (len(batch.action), config.fixation_relabels, actions.shape[-1])
+            uniform = torch.rand(shape, generator=self.rng, device=self.device) * 2.0 - 1.0
+            actions = torch.cat([actions, uniform], dim=1)
+        centres = batch.object_centres.float()
+        return actions, proximity_reward(actions, centres, config.fixation_proximity_radius)
 
     def update(self, grasp_batch: GraspBatch, fixation_batch: FixationBatch | None, step: int) -> dict[str, float]:
         """One joint step: ELBO + grasp SAC + fixation SAC; ``step`` is the update count (schedules).

@@ -78,8 +78,12 @@ class ModelConfig:
     """Conv block of every actor and critic: 3x3 kernels with these channels (paper, Method B)."""
     heads_see_proprioception: bool = False
     """False: the actors and critics see r only (paper, Method B: g and v reach the policy only through the
-    encoder). True (ours, the CPU preset): they also see the gripper pose g, the fixation point f and f - tip,
-    tiled beside r (docs/decisions.md: the encoder, trained by the ELBO only, keeps little of g in r)."""
+    encoder). True (ours, the CPU presets): they also see the gripper pose g tiled beside r (docs/decisions.md:
+    the encoder, trained by the ELBO only, keeps little of g in r)."""
+    heads_see_fixation: bool = False
+    """True (ours): the heads also see the fixation point f and f - tip, tiled beside r. Only where the
+    observation has f: the point a learned fixation chose, or the target's true centre in the labelled
+    privileged preset (``--env.reveal-target``); never the simulator's answer otherwise."""
     log_std_min: float = -20.0
     """Clamp of the actor's log standard deviation, low end (Haarnoja et al. 2018 reference code: -20)."""
     log_std_max: float = 2.0
@@ -98,6 +102,18 @@ class ModelConfig:
     """Grasp transitions per update (Haarnoja et al. 2018: 256)."""
     fixation_batch_size: int = 256
     """Fixation (bandit) samples per update (Haarnoja et al. 2018: 256)."""
+    fixation_reward: Literal["grasp", "proximity"] = "grasp"
+    """What the fixation bandit regresses. "grasp": the episode's sparse grasp reward (paper, Method A).
+    "proximity" (ours, the CPU recipe): ``1 - min(d, R) / R``, d the distance from the chosen point to the nearest
+    object centre of the scene at the fixation action (the simulator's, as rewards may be), R =
+    ``fixation_proximity_radius`` (docs/decisions.md: at CPU budgets the grasp reward teaches a place, not to
+    look at objects)."""
+    fixation_proximity_radius: float = 0.15
+    """m: R of the proximity reward (ours; beyond it a point earns 0)."""
+    fixation_relabels: int = 0
+    """With the proximity reward: per bandit sample this many more fixation actions, uniform in the action box,
+    each with the proximity reward it would have earned in that scene (ours: hindsight relabelling, possible
+    because that reward is a known function of the scene; 0 = the chosen action only)."""
 
     # --- ablation (paper, section 4C) ---
     representation: bool = True
@@ -150,8 +166,9 @@ class ModelConfig:
 
     @property
     def head_proprioception_dim(self) -> int:
-        """Channels the proprioception adds to a head's input: g (9), f (3), f - tip (3); or 0."""
-        return self.gripper_dim + 6 if self.heads_see_proprioception else 0
+        """Channels the proprioception adds to a head's input: g (9) with ``heads_see_proprioception``, f (3) and
+        f - tip (3) with ``heads_see_fixation``."""
+        return self.gripper_dim * self.heads_see_proprioception + 6 * self.heads_see_fixation
 
     @property
     def pose_dim(self) -> int:

@@ -8,11 +8,13 @@ import math
 from dataclasses import asdict, dataclass, field
 from typing import Literal
 
+import numpy as np
 from tqdm import tqdm
 
+from apr.envs.config import REWARD, SCENE
 from apr.model.agent import APRAgent
 from apr.train.config import ConfigError, EnvConfig
-from apr.train.rollout import EpisodeResult, Policy, run_round
+from apr.train.rollout import BLIND_PHASES, EpisodeResult, Policy, run_round
 from apr.train.workers import LocalWorkers, WorkersFactory, pool_renderer
 
 EVAL_SEED = 2_000_000_000
@@ -41,8 +43,14 @@ class EvalResult:
     lost: int
     renderer: str = ""
     """What the evaluation's environments rendered with: "egl", "tiny" or "mixed" (they did not agree)."""
+    blind: str = ""
+    """"" (the policy saw its own images), or the phases in which it saw another scene's ("fixation", "grasp",
+    "both": :func:`apr.train.rollout.run_round`)."""
+    fixation: dict = field(default_factory=dict)
+    """Learned fixation: where the chosen points lay (:func:`fixation_statistics`); empty otherwise."""
     outcomes: list[dict] = field(default_factory=list)
-    """Per episode: seed, grasp steps, attempted, success."""
+    """Per episode: seed, grasp steps, attempted, success (and with a learned fixation the chosen point and its
+    distance to the nearest object)."""
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -80,19 +88,19 @@ def renderer_mismatch(trained: str, actual: str) -> str | None:
 
 def evaluate(agent: APRAgent, env: EnvConfig, episodes: int, split: str = "test", num_workers: int = 1,
              workers: WorkersFactory | None = None, trained_renderer: str = "",
-             on_mismatch: Literal["refuse", "warn"] = "refuse") -> EvalResult:  # fmt: skip
+             on_mismatch: Literal["refuse", "warn"] = "refuse", blind: str = "") -> EvalResult:  # fmt: skip
     """Run ``episodes`` episodes with the mean action of both policies; lost episodes are rerun (the other
     arguments as for :func:`evaluate_policy`)."""
 
     def policy(observations, phase):
         return agent.act(observations, deterministic=True, policy=phase)
 
-    return evaluate_policy(policy, env, episodes, split, num_workers, workers, trained_renderer, on_mismatch)
+    return evaluate_policy(policy, env, episodes, split, num_workers, workers, trained_renderer, on_mismatch, blind)
 
 
 def evaluate_policy(policy: Policy, env: EnvConfig, episodes: int, split: str = "test", num_workers: int = 1,
                     workers: WorkersFactory | None = None, trained_renderer: str = "",
-                    on_mismatch: Literal["refuse", "warn"] = "refuse") -> EvalResult:  # fmt: skip
+                    on_mismatch: Literal["refuse", "warn"] = "refuse", blind: str = "") -> EvalResult:  # fmt: skip
     """Run ``episodes`` episodes of ``policy`` on the evaluation seeds ``EVAL_SEED + k`` (the same episodes for
     every policy, checkpoint and run); lost episodes are rerun with the next seeds.
 
@@ -102,14 +110,22 @@ def evaluate_policy(policy: Policy, env: EnvConfig, episodes: int, split: str = 
         trained_renderer: what the policy's training images came from ("egl", "tiny", "mixed"; "": not recorded,
             not checked). Before the first episode the environments' renderer is compared with it; a mismatch
             raises :class:`RendererMismatch` (``on_mismatch="refuse"``) or is written to the console ("warn").
+        blind: "" or the phases ("fixation", "grasp", "both") in which the policy sees another scene's images
+            (:func:`apr.train.rollout.run_round`). Blind rounds pair episodes EVAL_SEED + 2j with EVAL_SEED + 2j + 1,
+            whatever the number of workers (at least 2 are opened), so ``episodes`` is rounded up to even.
     """
     if episodes < 1:
         raise ValueError(f"episodes must be at least 1, got {episodes}")
+    if blind not in BLIND_PHASES:
+        raise ValueError(f"blind must be one of {tuple(BLIND_PHASES)}, got {blind!r}")
+    pair = 2 if blind else 1
+    episodes = -(-episodes // pair) * pair
+    pool_size = max(min(num_workers, episodes) // pair * pair, pair)
     open_workers = workers or LocalWorkers()
     done: list[EpisodeResult] = []
     lost = 0
     next_seed = EVAL_SEED
-    with open_workers(min(num_workers, episodes), env.env_id, env.make_kwargs(split), evaluation=True) as pool:
+    with open_workers(pool_size, env.env_id, env.make_kwargs(split), evaluation=True) as pool:
         renderer = pool_renderer(pool.renderers())
         problem = renderer_mismatch(trained_renderer, renderer)
         if problem and on_mismatch == "refuse":
@@ -117,10 +133,10 @@ def evaluate_policy(policy: Policy, env: EnvConfig, episodes: int, split: str = 
         if problem:
             tqdm.write(f"warning: {problem}")
         while len(done) < episodes:
-            count = min(len(pool), episodes - len(done))
+            count = max(min(len(pool), episodes - len(done)) // pair * pair, pair)
             seeds = list(range(next_seed, next_seed + count))
             next_seed += count
-            for result in run_round(pool, seeds, policy, env.dof, env.learned_fixation):
+            for result in run_round(pool, seeds, policy, env.dof, env.learned_fixation, blind=blind):
                 if result.lost:
                     lost += 1
                 else:
@@ -129,7 +145,52 @@ def evaluate_policy(policy: Policy, env: EnvConfig, episodes: int, split: str = 
     low, high = wilson_interval(successes, len(done))
     return EvalResult(
         split=split, episodes=len(done), successes=successes, success_rate=successes / len(done), ci_low=low,
-        ci_high=high, attempts=sum(r.attempted for r in done), lost=lost, renderer=renderer,
-        outcomes=[{"seed": r.seed, "grasp_steps": r.grasp_steps, "attempted": r.attempted, "success": r.success}
-                  for r in done],
+        ci_high=high, attempts=sum(r.attempted for r in done), lost=lost, renderer=renderer, blind=blind,
+        fixation=fixation_statistics(done) if env.learned_fixation else {},
+        outcomes=[_outcome(r, env.learned_fixation) for r in done],
     )  # fmt: skip
+
+
+def _outcome(result: EpisodeResult, learned_fixation: bool) -> dict:
+    outcome = {"seed": result.seed, "grasp_steps": result.grasp_steps, "attempted": result.attempted,
+               "success": result.success}  # fmt: skip
+    if learned_fixation and result.fixation_point is not None:
+        outcome["fixation_point"] = [round(float(x), 4) for x in result.fixation_point]
+        outcome["fixation_object_distance"] = round(result.fixation_object_distance, 4)
+    return outcome
+
+
+UNIFORM_POINTS_PER_EPISODE = 100
+"""Uniformly random fixation points drawn per episode for the chance level of :func:`fixation_statistics`."""
+
+
+def fixation_statistics(results: list[EpisodeResult]) -> dict[str, float]:
+    """Where a learned fixation looked, beside two policies that do not look: one fixed point in the middle of
+    the drop area (the bin centre) and uniformly random points of the fixation box, on the same scenes.
+
+    Returns:
+        ``median_cm`` (the chosen points' median distance to the nearest object centre), ``spread_x_cm`` and
+        ``spread_y_cm`` (the chosen points' standard deviations over the scenes), and ``fixed_median_cm``,
+        ``uniform_median_cm`` (the same median for the fixed point and for the random points); {} without
+        scenes.
+    """
+    scenes = [r for r in results if r.object_centres is not None and len(r.object_centres)]
+    if not scenes:
+        return {}
+    rng = np.random.default_rng(0)
+    low, high = np.array(REWARD.workspace_low), np.array(REWARD.workspace_high)
+
+    def nearest(points: np.ndarray, centres: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(points[:, None] - centres[None], axis=-1).min(axis=1)
+
+    chosen = np.array([r.fixation_point for r in scenes], dtype=np.float64)
+    fixed = np.concatenate([nearest(np.array([SCENE.bin_centre]), r.object_centres) for r in scenes])
+    uniform = np.concatenate([nearest(rng.uniform(low, high, (UNIFORM_POINTS_PER_EPISODE, 3)), r.object_centres)
+                              for r in scenes])  # fmt: skip
+    centimetres = lambda value: round(100 * float(value), 2)  # noqa: E731
+    return {
+        "median_cm": centimetres(np.median([r.fixation_object_distance for r in scenes])),
+        "spread_x_cm": centimetres(chosen[:, 0].std()), "spread_y_cm": centimetres(chosen[:, 1].std()),
+        "fixed_median_cm": centimetres(np.median(fixed)), "uniform_median_cm": centimetres(np.median(uniform)),
+        "scenes": len(scenes),
+    }  # fmt: skip

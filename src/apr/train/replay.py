@@ -26,7 +26,10 @@ class ReplaySpec:
     gripper_dim: int
     grasp_action_dim: int
     fixation_dim: int = 3
+    """3 where the observations hold a fixation point (learned fixation, ``reveal_target``), else 0."""
     fixation_action_dim: int = 3
+    max_objects: int = 5
+    """Object centres stored per fixation sample (the scene at the fixation action; padded with NaN)."""
 
 
 class FrameRing:
@@ -47,14 +50,17 @@ class FrameRing:
         self.images[slot] = observation["images"]
         self.viewpoints[slot] = observation["viewpoints"]
         self.gripper[slot] = observation["gripper"]
-        self.fixation[slot] = observation["fixation"]
+        if self.fixation.shape[1]:  # the observation has a fixation point (``ReplaySpec.fixation_dim``)
+            self.fixation[slot] = observation["fixation"]
         self.stamp[slot] = self.writes
         self.writes += 1
         return slot, self.writes - 1
 
     def batch(self, slots: np.ndarray) -> dict[str, np.ndarray]:
-        return {"images": self.images[slots], "viewpoints": self.viewpoints[slots], "gripper": self.gripper[slots],
-                "fixation": self.fixation[slots]}  # fmt: skip
+        batch = {"images": self.images[slots], "viewpoints": self.viewpoints[slots], "gripper": self.gripper[slots]}
+        if self.fixation.shape[1]:
+            batch["fixation"] = self.fixation[slots]
+        return batch
 
 
 class ReplayBuffer:
@@ -85,6 +91,7 @@ class ReplayBuffer:
         self.f_stamp = np.full(self.fixation_capacity, -1, np.int64)
         self.f_action = np.zeros((self.fixation_capacity, spec.fixation_action_dim), np.float32)
         self.f_reward = np.zeros(self.fixation_capacity, np.float32)
+        self.f_centres = np.full((self.fixation_capacity, spec.max_objects, 3), np.nan, np.float32)
         self.f_count = 0
 
     @staticmethod
@@ -93,7 +100,7 @@ class ReplayBuffer:
         poses = int(np.prod(spec.viewpoint_shape)) + spec.gripper_dim + spec.fixation_dim
         frame = int(np.prod(spec.image_shape)) + 4 * poses + 8
         transition = 8 * 4 + 4 * (spec.grasp_action_dim + 2)
-        fixation = 16 + 4 * (spec.fixation_action_dim + 1)
+        fixation = 16 + 4 * (spec.fixation_action_dim + 1 + 3 * spec.max_objects)
         return (capacity + capacity // 2) * frame + capacity * transition + max(capacity // 4, 1) * fixation
 
     # ----------------------------------------------------------------------------------------------- adding
@@ -111,11 +118,18 @@ class ReplayBuffer:
         self.t_terminated[i] = float(terminated)
         self.t_count += 1
 
-    def add_fixation(self, obs_ref: tuple[int, int], action: np.ndarray, reward: float) -> None:
+    def add_fixation(self, obs_ref: tuple[int, int], action: np.ndarray, reward: float,
+                     object_centres: np.ndarray | None = None) -> None:  # fmt: skip
+        """A bandit sample: the observation it chose from, the fixation action, the episode's grasp reward, and
+        the objects' centres (N, 3) when it chose (the simulator's, for rewards only; at most ``max_objects``)."""
         i = self.f_count % self.fixation_capacity
         self.f_frame[i], self.f_stamp[i] = obs_ref
         self.f_action[i] = action
         self.f_reward[i] = reward
+        self.f_centres[i] = np.nan
+        if object_centres is not None and len(object_centres):
+            kept = np.asarray(object_centres, np.float32)[: self.spec.max_objects]
+            self.f_centres[i, : len(kept)] = kept
         self.f_count += 1
 
     # --------------------------------------------------------------------------------------------- sampling
@@ -146,10 +160,10 @@ class ReplayBuffer:
         }
 
     def sample_fixation(self, batch_size: int, rng: np.random.Generator) -> dict[str, np.ndarray | dict]:
-        """Uniform fixation samples: obs dict of arrays, action, reward."""
+        """Uniform fixation samples: obs dict of arrays, action, reward, object_centres (B, max_objects, 3)."""
         index = rng.choice(self._valid_fixations(), size=batch_size)
         return {"obs": self.frames.batch(self.f_frame[index]), "action": self.f_action[index],
-                "reward": self.f_reward[index]}  # fmt: skip
+                "reward": self.f_reward[index], "object_centres": self.f_centres[index]}  # fmt: skip
 
     # ------------------------------------------------------------------------------------------ persistence
     def state(self) -> dict[str, np.ndarray]:

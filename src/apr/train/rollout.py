@@ -47,6 +47,10 @@ class EpisodeResult:
     lost: str = ""
     """Why the episode was lost (its worker died), or empty."""
     fixation_point: np.ndarray | None = None
+    fixation_object_distance: float = float("nan")
+    """m from the fixation point to the nearest object centre at the fixation action (learned fixation)."""
+    object_centres: np.ndarray | None = None
+    """(N, 3) the objects' centres when the fixation point was chosen (the simulator's, for statistics)."""
 
 
 class Recorder(Protocol):
@@ -54,7 +58,7 @@ class Recorder(Protocol):
 
     def on_reset(self, worker: int, observation: dict) -> None: ...
 
-    def on_fixation(self, worker: int, action: np.ndarray, observation: dict) -> None: ...
+    def on_fixation(self, worker: int, action: np.ndarray, result: StepResult) -> None: ...
 
     def on_step(self, worker: int, action: np.ndarray, result: StepResult) -> None: ...
 
@@ -62,12 +66,21 @@ class Recorder(Protocol):
 
 
 MODEL_KEYS = ("images", "viewpoints", "gripper", "fixation")
-"""The observation entries the model reads."""
+"""The observation entries the model reads (``fixation`` only where the environment's observation has it)."""
+
+
+BLIND_PHASES = {"": (), "fixation": ("fixation",), "grasp": ("grasp",), "both": ("fixation", "grasp")}
+"""Blind modes of :func:`run_round`: the phases whose policy inputs get another episode's images."""
+
+
+def blind_donor(worker: int) -> int:
+    """The episode whose images a blind episode sees: rounds pair episodes (0 with 1, 2 with 3, ...)."""
+    return worker ^ 1
 
 
 def stack(observations: list[dict[str, Any]]) -> dict[str, np.ndarray]:
-    """Batch a list of observation dicts (the keys the model reads)."""
-    return {key: np.stack([o[key] for o in observations]) for key in MODEL_KEYS}
+    """Batch a list of observation dicts (the keys the model reads that they have)."""
+    return {key: np.stack([o[key] for o in observations]) for key in MODEL_KEYS if key in observations[0]}
 
 
 def run_round(
@@ -78,15 +91,26 @@ def run_round(
     learned_fixation: bool,
     recorder: Recorder | None = None,
     while_waiting: Callable[[int], None] | None = None,
+    blind: str = "",
 ) -> list[EpisodeResult]:
     """Run one episode on each of the first ``len(seeds)`` workers; return how each ended.
 
     Args:
         dof: the grasp action size (the learned-fixation env takes a Dict action with both entries).
         while_waiting: called with the number of workers stepping, while they step.
+        blind: "" (the policy sees each episode's own observations), or the phases ("fixation", "grasp",
+            "both") in which it sees, in place of an episode's images, those of the episode paired with it
+            (:func:`blind_donor`): another scene, in the same phase, at the same step or, once that episode has
+            ended, at its last step. Everything else (viewpoints, gripper, fixation point) stays the episode's
+            own. Needs an even number of seeds.
     """
+    if blind not in BLIND_PHASES:
+        raise ValueError(f"blind must be one of {tuple(BLIND_PHASES)}, got {blind!r}")
+    if blind and len(seeds) % 2:
+        raise ValueError(f"a blind round pairs its episodes: give an even number of seeds, got {len(seeds)}")
     results = [EpisodeResult(seed=seed) for seed in seeds]
     observations: dict[int, dict] = {}
+    latest: dict[int, dict] = {}  # each episode's last observation before its end: what a blind partner sees
     for worker, seed in enumerate(seeds):
         workers.send_reset(worker, seed)
     for worker in range(len(seeds)):
@@ -94,13 +118,20 @@ def run_round(
         if isinstance(answer, WorkerFailure):
             results[worker].lost = answer.reason
             continue
-        observations[worker] = answer[0]
+        observations[worker] = latest[worker] = answer[0]
         if recorder:
             recorder.on_reset(worker, answer[0])
 
+    def policy_inputs(active: list[int], phase: str) -> dict[str, np.ndarray]:
+        batch = stack([observations[w] for w in active])
+        if phase in BLIND_PHASES[blind]:
+            donors = [latest.get(blind_donor(w), observations[w]) for w in active]
+            batch["images"] = np.stack([donor["images"] for donor in donors])
+        return batch
+
     def step_all(phase: str) -> dict[int, StepResult]:
         active = sorted(observations)
-        actions = policy(stack([observations[w] for w in active]), phase)
+        actions = policy(policy_inputs(active, phase), phase)
         for worker, action in zip(active, actions, strict=True):
             if learned_fixation:
                 fixation = action if phase == "fixation" else np.zeros(3, np.float32)
@@ -120,15 +151,20 @@ def run_round(
             answers[worker] = answer
             if recorder:
                 if phase == "fixation":
-                    recorder.on_fixation(worker, action, answer.observation)
+                    recorder.on_fixation(worker, action, answer)
                 else:
                     recorder.on_step(worker, action, answer)
             observations[worker] = answer.observation
+            if not (answer.terminated or answer.truncated):
+                latest[worker] = answer.observation
         return answers
 
     if learned_fixation and observations:
         for worker, answer in step_all("fixation").items():
-            results[worker].fixation_point = answer.info["fixation_point"]
+            result, info = results[worker], answer.info
+            result.fixation_point = info["fixation_point"]
+            result.fixation_object_distance = float(info.get("fixation_object_distance", float("nan")))
+            result.object_centres = info.get("object_centres")
     while observations:
         for worker, answer in step_all("grasp").items():
             result, info = results[worker], answer.info

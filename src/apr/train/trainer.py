@@ -159,7 +159,7 @@ class Trainer:
         spec = ReplaySpec(
             image_shape=(3, config.model.image_size, config.model.image_size, config.env.image_channels),
             viewpoint_shape=(3, config.model.viewpoint_dim), gripper_dim=config.model.gripper_dim,
-            grasp_action_dim=config.env.dof,
+            grasp_action_dim=config.env.dof, fixation_dim=3 if config.env.observes_fixation else 0,
         )  # fmt: skip
         need = ReplayBuffer.bytes_needed(config.replay_capacity, spec)
         have = available_memory_bytes()
@@ -404,6 +404,7 @@ class Trainer:
             obs=Observation.from_env(fixation["obs"], device),
             action=torch.from_numpy(fixation["action"]).to(device),
             reward=torch.from_numpy(fixation["reward"]).to(device),
+            object_centres=torch.from_numpy(fixation["object_centres"]).to(device),
         )
 
     def _count(self, results: list[EpisodeResult]) -> None:
@@ -539,15 +540,15 @@ class _Recorder:
     def __init__(self, replay: ReplayBuffer):
         self.replay = replay
         self.last_frame: dict[int, tuple[int, int]] = {}
-        self.fixation: dict[int, tuple[tuple[int, int], np.ndarray]] = {}
+        self.fixation: dict[int, tuple[tuple[int, int], np.ndarray, np.ndarray | None]] = {}
 
     def on_reset(self, worker: int, observation: dict) -> None:
         self.last_frame[worker] = self.replay.add_frame(observation)
         self.fixation.pop(worker, None)
 
-    def on_fixation(self, worker: int, action: np.ndarray, observation: dict) -> None:
-        self.fixation[worker] = (self.last_frame[worker], action)
-        self.last_frame[worker] = self.replay.add_frame(observation)
+    def on_fixation(self, worker: int, action: np.ndarray, result: StepResult) -> None:
+        self.fixation[worker] = (self.last_frame[worker], action, result.info.get("object_centres"))
+        self.last_frame[worker] = self.replay.add_frame(result.observation)
 
     def on_step(self, worker: int, action: np.ndarray, result: StepResult) -> None:
         next_frame = self.replay.add_frame(result.observation)
@@ -555,9 +556,9 @@ class _Recorder:
         self.last_frame[worker] = next_frame
 
     def on_end(self, worker: int, result: EpisodeResult) -> None:
-        if worker in self.fixation:  # the bandit's reward: the episode's sparse grasp reward only
-            frame, action = self.fixation.pop(worker)
-            self.replay.add_fixation(frame, action, float(result.success))
+        if worker in self.fixation:  # the bandit's grasp reward: the episode's sparse grasp reward only
+            frame, action, centres = self.fixation.pop(worker)
+            self.replay.add_fixation(frame, action, float(result.success), centres)
 
 
 def latest_checkpoint(run_dir: Path) -> Path | None:
