@@ -316,3 +316,19 @@ def test_a_packaged_checkpoint_dropped_in_is_what_the_demo_runs_and_reports(run_
             f"minutes of training on the test machine; measured held-out success at those weights: "
             f"{final['successes']}/{final['episodes']}") in report  # fmt: skip
     assert iio.imread(tmp_path / "demo" / "fig5_pregrasp.png").ndim == 3
+
+
+def test_a_packaged_policys_description_gives_its_blind_numbers_beside_its_success():
+    from apr.reproduce.policies import training_description
+
+    own = {"successes": 82, "episodes": 100, "success_rate": 0.82, "ci_low": 0.73, "ci_high": 0.88}
+    blind = {"successes": 85, "episodes": 100, "success_rate": 0.85, "own_successes": 80}
+    manifest = {"command": "apr train --preset cpu-4d --seed 1", "grasps": 584, "final_eval": own,
+                "blind": {"both": blind}}  # fmt: skip
+    text = training_description(manifest)
+    assert "82/100 = 82.0%" in text
+    assert text.endswith("given another scene's images in every phase (blind): 85/100 = 85.0% (its own images in "
+                         "that measurement: 80/100).")  # fmt: skip
+    del manifest["final_eval"]
+    assert "no held-out evaluation of these exact weights was recorded; given another scene's" in (
+        training_description(manifest))  # fmt: skip

@@ -161,13 +161,13 @@ def training_description(manifest: dict) -> str:
             f"; measured held-out success at those weights: {evaluation['successes']}/{evaluation['episodes']} "
             f"= {evaluation['success_rate']:.1%} (95% CI {evaluation['ci_low']:.1%}-{evaluation['ci_high']:.1%})"
         )
+    else:
+        text += "; no held-out evaluation of these exact weights was recorded"
     for mode, result in manifest.get("blind", {}).items():  # measured later, on the same held-out episodes
         where = "every phase" if mode == "both" else f"the {mode} phase"
         text += (f"; given another scene's images in {where} (blind): {result['successes']}/{result['episodes']} = "
                  f"{result['success_rate']:.1%} (its own images in that measurement: {result['own_successes']}/"
                  f"{result['episodes']})")  # fmt: skip
-    else:
-        text += "; no held-out evaluation of these exact weights was recorded"
     return text + "."
 
 
