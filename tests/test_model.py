@@ -327,3 +327,13 @@ def test_relabelled_bandit_targets_pair_uniform_actions_with_their_proximity() -
     grasp_only = APRAgent(ModelConfig.tiny())
     actions, rewards = grasp_only._bandit_targets(fixation)
     assert torch.equal(actions[:, 0], fixation.action) and torch.equal(rewards[:, 0], fixation.reward)
+
+
+def test_the_learner_maps_fixation_actions_to_points_as_the_environment_does() -> None:
+    """``fixation_points`` (torch, for the proximity reward) is the twin of the task's numpy mapping."""
+    from apr.envs.task import GraspTask
+    from apr.model.agent import fixation_points
+
+    actions = np.random.default_rng(0).uniform(-1, 1, (20, 3))
+    expected = np.stack([GraspTask.fixation_from_action(a) for a in actions])
+    np.testing.assert_allclose(fixation_points(torch.from_numpy(actions)).numpy(), expected, atol=1e-12)

@@ -168,11 +168,9 @@ def _read_json(path: Path) -> dict:
 
 def _update_json(path: Path, **sections: object) -> None:
     """Replace some top-level sections of the JSON file ``path`` (written atomically), keeping the others."""
-    content = _read_json(path)
-    content.update(sections)
-    temporary = path.with_name(path.name + ".tmp")
-    temporary.write_text(json.dumps(content, indent=2))
-    temporary.replace(path)
+    from apr.train.checkpoints import write_text_atomically
+
+    write_text_atomically(path, json.dumps({**_read_json(path), **sections}, indent=2))
 
 
 def _blind(run_dir: Path, episodes: int, workers: int, path: Path) -> dict[str, dict]:
@@ -181,6 +179,7 @@ def _blind(run_dir: Path, episodes: int, workers: int, path: Path) -> dict[str, 
     (``baselines.json``) per run and grasps."""
     from apr.reproduce.policies import load_run
     from apr.train.evaluation import evaluate
+    from apr.train.rollout import blind_phases_text
 
     cache = _read_json(path).get("blind", {})
     snapshot = load_run(run_dir)
@@ -191,10 +190,9 @@ def _blind(run_dir: Path, episodes: int, workers: int, path: Path) -> dict[str, 
     results = {}
     for mode in ("", *BLIND_MODES[env.learned_fixation]):
         name = mode or "own"
-        where = "every phase" if mode in ("", "both") else f"the {mode} phase"
         whose = "another scene's" if mode else "its own"
-        print(f"{run_dir.name} at {snapshot.grasps} grasps, {whose} images in {where}: {episodes} held-out "
-              "episodes ...", flush=True)  # fmt: skip
+        print(f"{run_dir.name} at {snapshot.grasps} grasps, {whose} images in {blind_phases_text(mode)}: "
+              f"{episodes} held-out episodes ...", flush=True)  # fmt: skip
         result = evaluate(snapshot.agent, env, episodes, "test", workers, trained_renderer=snapshot.renderer,
                           blind=mode).to_dict()  # fmt: skip
         result.pop("outcomes")

@@ -188,6 +188,7 @@ def evaluate(args: EvalArgs) -> None:
     from apr.model.agent import APRAgent
     from apr.train.evaluation import RendererMismatch, renderer_request
     from apr.train.evaluation import evaluate as run_evaluation
+    from apr.train.rollout import blind_phases_text
 
     checks.refuse("apr eval", [
         checks.at_least("--episodes", args.episodes, 1),
@@ -215,8 +216,7 @@ def evaluate(args: EvalArgs) -> None:
         where = EGL_INSTALL if refused.trained == "egl" else f"evaluate where {refused.trained} serves"
         raise SystemExit(f"apr eval: error: {refused}. To measure the policy on its own images, {where}; or give "
                          f"--renderer {refused.actual} to evaluate it on these anyway") from None  # fmt: skip
-    phases = {"": "", "both": "every phase", "fixation": "the fixation phase", "grasp": "the grasp phase"}
-    blind = f"; another scene's images in {phases[args.blind]}" if args.blind else ""
+    blind = f"; another scene's images in {blind_phases_text(args.blind)}" if args.blind else ""
     summary = (f"{checkpoint}: {result.success_rate:.1%} success on {result.episodes} {args.split} episodes "
                f"(95% CI {result.ci_low:.1%}-{result.ci_high:.1%}; renderer {result.renderer}{blind})")  # fmt: skip
     if result.fixation:

@@ -40,6 +40,8 @@ class GraspEnv(gym.Env):
         if reveal_target and self.learned_fixation:
             raise ValueError("reveal_target needs target='env': with a learned fixation there is no target to reveal")
         self.reveal_target = bool(reveal_target)
+        self.observes_fixation = self.learned_fixation or self.reveal_target
+        """The observation has ``fixation``: the point a learned fixation chose, or the revealed target."""
         self.world = GraspWorld(renderer, with_head=with_head, render_size=render_size)
 
         views, size, channels = CAMERA.views_per_step, CAMERA.image_size, 4 if self.with_mask else 3
@@ -48,7 +50,7 @@ class GraspEnv(gym.Env):
             "viewpoints": spaces.Box(-2 * np.pi, 2 * np.pi, (views, 6), np.float32),
             "gripper": spaces.Box(-2.0, 2.0, (9,), np.float32),
         }
-        if self.learned_fixation or self.reveal_target:
+        if self.observes_fixation:
             observation["fixation"] = spaces.Box(-2.0, 2.0, (3,), np.float32)
         grasp_action = spaces.Box(-1.0, 1.0, (dof,), np.float32)
         if self.learned_fixation:
@@ -155,7 +157,7 @@ class GraspEnv(gym.Env):
             "viewpoints": viewpoints.astype(np.float32),
             "gripper": self.world.arm.pose(),
         }
-        if self.learned_fixation or self.reveal_target:
+        if self.observes_fixation:
             observation["fixation"] = np.asarray(self.fixation_point, dtype=np.float32).copy()
         if self.learned_fixation:
             observation["phase"] = self._phase

@@ -27,6 +27,7 @@ from apr.reproduce.runs import final_eval
 from apr.train.checkpoints import CheckpointError, newest_intact, read_checkpoint
 from apr.train.config import TrainConfig, preset
 from apr.train.evaluation import renderer_mismatch, renderer_request
+from apr.train.rollout import blind_phases_text
 
 PACKAGED_DIR = Path(__file__).parent / "checkpoints"
 """Where packaged checkpoints live (inside the installed package)."""
@@ -164,10 +165,9 @@ def training_description(manifest: dict) -> str:
     else:
         text += "; no held-out evaluation of these exact weights was recorded"
     for mode, result in manifest.get("blind", {}).items():  # measured later, on the same held-out episodes
-        where = "every phase" if mode == "both" else f"the {mode} phase"
-        text += (f"; given another scene's images in {where} (blind): {result['successes']}/{result['episodes']} = "
-                 f"{result['success_rate']:.1%} (its own images in that measurement: {result['own_successes']}/"
-                 f"{result['episodes']})")  # fmt: skip
+        text += (f"; given another scene's images in {blind_phases_text(mode)} (blind): {result['successes']}/"
+                 f"{result['episodes']} = {result['success_rate']:.1%} (its own images in that measurement: "
+                 f"{result['own_successes']}/{result['episodes']})")  # fmt: skip
     return text + "."
 
 

@@ -73,6 +73,11 @@ BLIND_PHASES = {"": (), "fixation": ("fixation",), "grasp": ("grasp",), "both": 
 """Blind modes of :func:`run_round`: the phases whose policy inputs get another episode's images."""
 
 
+def blind_phases_text(blind: str) -> str:
+    """The phases a blind mode covers, in words ("every phase" for "both", and for "": own images throughout)."""
+    return "every phase" if blind in ("", "both") else f"the {blind} phase"
+
+
 def blind_donor(worker: int) -> int:
     """The episode whose images a blind episode sees: rounds pair episodes (0 with 1, 2 with 3, ...)."""
     return worker ^ 1
