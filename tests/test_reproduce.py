@@ -332,3 +332,20 @@ def test_a_packaged_policys_description_gives_its_blind_numbers_beside_its_succe
     del manifest["final_eval"]
     assert "no held-out evaluation of these exact weights was recorded; given another scene's" in (
         training_description(manifest))  # fmt: skip
+
+
+def test_figure_3_drives_the_policy_in_its_own_environment_settings():
+    """The Figure 3 episode's environments keep what the run's policy was trained on: its render size, and for
+    the privileged cpu-4d the revealed target its heads read (before, a fresh EnvConfig dropped both)."""
+    from apr.reproduce.figures import fig3_driver
+    from apr.reproduce.policies import initial_snapshot
+    from apr.train.config import preset
+
+    snapshot = initial_snapshot(preset("cpu-4d").resolved(), "cpu-4d__s0")
+    own, replay, policy, _ = fig3_driver(snapshot)
+    assert policy is not None and own.env_id == "apr/ActiveGrasp-v0" and replay.env_id == "apr/PassiveGrasp-v0"
+    assert own.reveal_target and own.render_size == 128 and own.renderer == "tiny" and own.dof == 4
+    assert replay.foveation == "resize" and replay.render_size == 128
+    learned = initial_snapshot(preset("cpu-learned-4d").resolved(), "cpu-learned-4d__s0")
+    driver, _, policy, _ = fig3_driver(learned)
+    assert policy is None and driver.target == "env" and not driver.reveal_target  # the scripted policy drives

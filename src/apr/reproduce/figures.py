@@ -16,6 +16,7 @@ scripted reach-and-grasp) and ``figures.md`` repeats the captions.
 
 from __future__ import annotations
 
+import dataclasses
 import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -270,21 +271,15 @@ def fig3_driver(snapshot: PolicySnapshot) -> tuple[EnvConfig, EnvConfig, ActionS
     Returns:
         (driving env, replaying env, policy or None for the scripted one, label of the policy).
     """
-    env = snapshot.config.env
-    active = EnvConfig(
-        env_id="apr/ActiveGrasp-v0", dof=env.dof, target="env", foveation="logpolar", renderer=env.renderer
-    )
-    passive = EnvConfig(
-        env_id="apr/PassiveGrasp-v0", dof=env.dof, target="env", foveation="resize", renderer=env.renderer
-    )
+    env = snapshot.config.env  # each variant keeps the run's dof, renderer, render size, reveal_target, reach scale
+    active = dataclasses.replace(env, env_id="apr/ActiveGrasp-v0", target="env", foveation="logpolar")
+    passive = dataclasses.replace(env, env_id="apr/PassiveGrasp-v0", target="env", foveation="resize")
     if env.learned_fixation:
         return active, passive, None, SCRIPTED_LABEL
     policy = agent_actions(snapshot.agent)
     if env.env_id == "apr/PassiveGrasp-v0":
         return passive, active, policy, f"the policy of {snapshot.label} (acting on the passive inputs)"
-    own = EnvConfig(
-        env_id="apr/ActiveGrasp-v0", dof=env.dof, target="env", foveation=env.foveation, renderer=env.renderer
-    )
+    own = dataclasses.replace(active, foveation=env.foveation)
     return own, passive, policy, f"the policy of {snapshot.label} (acting on the active inputs)"
 
 
