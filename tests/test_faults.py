@@ -390,7 +390,8 @@ def test_help_lists_train_and_its_presets(capsys):
         (["demo", "--checkpoint", "RUN/checkpoints/replay_00000003.npz"], "replay_00000003.npz: unreadable"),
         (["render", "--steps", "-1"], "--steps must be at least 0"),
         (["figures", "RUN", "--episodes", "0"], "--episodes must be at least 1"),
-        (["reproduce", "table1", "--seeds", "0"], "--seeds must be at least 1"),
+        (["reproduce", "table1", "--seeds", "-1"], "--seeds must be at least 0"),
+        (["reproduce", "table1", "--scale", "cpu", "--tiny-model"], "the presets of --scale cpu are tiny already"),
     ],
 )
 def test_commands_check_their_arguments_before_any_work(run_dir: Path, args: list[str], message: str, monkeypatch):

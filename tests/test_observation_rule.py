@@ -11,7 +11,7 @@ import torch
 
 from apr.model.agent import APRAgent, Observation
 from apr.model.config import ModelConfig
-from apr.reproduce.table import PAPER_PRESETS
+from apr.reproduce.paper import PAPER_PRESETS
 from apr.train.config import PRESETS, ConfigError, TrainConfig, preset
 from apr.train.evaluation import fixation_statistics
 from apr.train.rollout import EpisodeResult
@@ -68,6 +68,7 @@ def test_a_config_saved_before_the_rule_loads_with_what_its_heads_saw() -> None:
     assert loaded.model.heads_see_fixation and loaded.env.reveal_target
     saved = json.loads(preset("active-target").to_json())
     del saved["model"]["heads_see_fixation"], saved["env"]["reveal_target"]
+    saved["model"]["heads_see_proprioception"] = False  # the paper presets' heads then saw r only
     loaded = TrainConfig.from_json(json.dumps(saved))
     assert not loaded.model.heads_see_fixation and not loaded.env.reveal_target
 

@@ -25,8 +25,10 @@ from apr.model.config import ModelConfig
 from apr.reproduce import campaign, demo, figures, plot
 from apr.reproduce.campaign import Table1Args, plan_runs
 from apr.reproduce.episodes import make_env
+from apr.reproduce.orderings import Difference, Ordering, bootstrap_difference, verdict
+from apr.reproduce.paper import PAPER_PRESETS
 from apr.reproduce.policies import PolicySnapshot, load_training_checkpoint, package_checkpoint, run_checkpoints
-from apr.reproduce.table import PAPER_PRESETS, build_table1, render_table1
+from apr.reproduce.table import build_table1, render_table1, write_table1
 from apr.train.config import preset
 from apr.train.evaluation import wilson_interval
 from apr.train.trainer import METRICS_COLUMNS
@@ -54,9 +56,12 @@ PAPER_SAYS = {
 
 
 # ------------------------------------------------------------------------------------------- fabricated runs
-def fabricate_run(root: Path, preset_name: str, seed: int, evaluations: list[tuple[int, int, int]]) -> Path:
+def fabricate_run(
+    root: Path, preset_name: str, seed: int, evaluations: list[tuple[int, int, int]], finished: bool = True
+) -> Path:
     """A run folder without training: config.json, and per (grasps, successes, episodes) an eval file and a
-    metrics.csv row (with a row without evaluation before each)."""
+    metrics.csv row (with a row without evaluation before each); ``finished``: the last one is the run's final
+    evaluation."""
     run_dir = root / f"{preset_name}__s{seed}"
     (run_dir / "eval").mkdir(parents=True)
     (run_dir / "config.json").write_text(dataclasses.replace(preset(preset_name), seed=seed).to_json())
@@ -74,6 +79,7 @@ def fabricate_run(root: Path, preset_name: str, seed: int, evaluations: list[tup
             "lost": 0,
             "outcomes": [],
             "grasps": grasps,
+            "final": finished and grasps == evaluations[-1][0],
         }
         (run_dir / "eval" / f"eval_{grasps:08d}.json").write_text(json.dumps(result))
         blank = dict.fromkeys(METRICS_COLUMNS, "")
@@ -90,7 +96,7 @@ def fabricate_run(root: Path, preset_name: str, seed: int, evaluations: list[tup
 
 def table_cells(markdown: str) -> dict[str, list[str]]:
     """The cells of Table 1's rows (the first table of the markdown), by preset."""
-    table = markdown.split("## Runs")[0]
+    table = markdown.split("\n## ")[0]
     rows = {}
     for line in table.splitlines():
         if line.startswith("| ") and not line.startswith(("| preset", "| ---")):
@@ -129,20 +135,21 @@ def test_table1_shows_exactly_the_numbers_of_the_final_eval_files(tmp_path: Path
         assert rows[name][2] == expected
         rates = [s / n for s, n in seeds]
         assert rows[name][3] == f"{100 * statistics.mean(rates):.1f}% ± {100 * statistics.stdev(rates):.1f} pts"
-        assert rows[name][4] == "2 (s0, s1)"
-        assert rows[name][6] == str(total_episodes)
-    assert rows["active-target"][5] == "1,000"  # the grasps of the final evaluations
-    assert rows["active-learned-4d"][5] == "1,050"
+        assert rows[name][4] == "-"  # no blind evaluation
+        assert rows[name][5] == "2 (s0, s1)"
+        assert rows[name][7] == str(total_episodes)
+    assert rows["active-target"][6] == "1,000"  # the grasps of the final evaluations
+    assert rows["active-learned-4d"][6] == "1,050"
     assert "3/100" not in markdown.split("## Runs")[0]  # the earlier evaluations are not reported
     assert "eval_00001000.json" in markdown  # each run's final evaluation file is named
 
 
 def test_table1_campaign_skips_finished_resumes_checkpointed_and_restarts_the_rest(tmp_path: Path):
     fabricate_run(tmp_path, "smoke", 0, [(8, 1, 2)])  # evaluated at the budget: done
-    resumable = fabricate_run(tmp_path, "smoke", 1, [(4, 1, 2)])  # half-way, with a checkpoint
+    resumable = fabricate_run(tmp_path, "smoke", 1, [(4, 1, 2)], finished=False)  # half-way, with a checkpoint
     (resumable / "checkpoints").mkdir()
     (resumable / "checkpoints" / "checkpoint_00000004.pt").write_bytes(b"")
-    fabricate_run(tmp_path, "smoke", 2, [(4, 1, 2)])  # half-way, no checkpoint: start over
+    fabricate_run(tmp_path, "smoke", 2, [(4, 1, 2)], finished=False)  # half-way, no checkpoint: start over
 
     plans = plan_runs(["smoke"], [0, 1, 2, 3], tmp_path, {"total_grasps": 8})
 
@@ -177,6 +184,103 @@ def test_plot_draws_one_line_per_preset_with_the_spread_across_seeds(tmp_path: P
         assert top == pytest.approx(100 * (rates.mean(axis=0) + rates.std(axis=0, ddof=1)).max())
 
 
+def fabricate_blind(run_dir: Path, grasps: int, successes: int, episodes: int) -> None:
+    """The blind evaluation of a fabricated run's policy at ``grasps``."""
+    result = {"blind": "both", "episodes": episodes, "successes": successes, "success_rate": successes / episodes,
+              "grasps": grasps}  # fmt: skip
+    (run_dir / "eval" / f"blind_both_{grasps:08d}.json").write_text(json.dumps(result))
+
+
+CPU_SEEDS = {  # paper row -> per seed (successes of 100 at 600 grasps, blind successes or None)
+    "active-target": [(70, 20), (60, 30), (80, None)],
+    "passive-target": [(50, 10), (50, 20), (50, 30)],
+    "active-target-no-logpolar": [(95, 5), (99, 5)],
+    "active-target-no-representation": [(68, 1), (72, 2), (70, 3)],
+    "active-learned-6d": [(10, 9)],
+    "active-learned-4d": [(60, 50), (70, 40), (80, 30)],
+}
+
+
+def test_cpu_table_gives_the_known_means_blind_successes_and_orderings(tmp_path: Path):
+    runs = tmp_path / "runs"
+    for row, seeds in CPU_SEEDS.items():
+        for seed, (successes, blind) in enumerate(seeds):
+            run_dir = fabricate_run(runs, "cpu-" + row, seed, [(200, 1, 30), (600, successes, 100)])
+            if blind is not None:
+                fabricate_blind(run_dir, 600, blind, 100)
+    out = write_table1([runs], tmp_path / "table1.md", [f"cpu-{row}" for row in CPU_SEEDS])
+
+    table = json.loads(out.with_name("table1.json").read_text())
+    by_row = {row["paper_row"]: row for row in table["rows"]}
+    for row, seeds in CPU_SEEDS.items():
+        rates = [successes / 100 for successes, _ in seeds]
+        blinds = [blind / 100 for _, blind in seeds if blind is not None]
+        assert by_row[row]["preset"] == "cpu-" + row
+        assert by_row[row]["seed_mean"] == pytest.approx(statistics.mean(rates))
+        assert by_row[row]["blind_mean"] == pytest.approx(statistics.mean(blinds))
+        assert [seed["success_rate"] for seed in by_row[row]["seeds"]] == pytest.approx(rates)
+        assert all(seed["grasps"] == 600 and seed["episodes"] == 100 for seed in by_row[row]["seeds"])
+    found = {(item["first"], item["second"]): item for item in table["orderings"]}
+    # active 70% (60, 70, 80) against passive 50% (all 50): the bootstrap draws three of active's seeds, so the
+    # interval spans the 2.5th and 97.5th percentiles of a mean of three draws from {60, 70, 80}, minus 50
+    active = found["cpu-active-target", "cpu-passive-target"]
+    assert active["difference"] == pytest.approx(0.2)
+    draws = np.array(np.meshgrid([0.6, 0.7, 0.8], [0.6, 0.7, 0.8], [0.6, 0.7, 0.8])).reshape(3, -1).mean(axis=0)
+    low, high = np.percentile(draws - 0.5, [2.5, 97.5], method="inverted_cdf")  # the 27 equally likely resamples
+    assert (active["ci_low"], active["ci_high"]) == pytest.approx((low, high)) == (0.1, 0.3)
+    assert active["verdict"] == "holds" and active["seeds"] == [3, 3]
+    assert found["cpu-active-target", "cpu-active-target-no-logpolar"]["verdict"] == "reversed"  # 70 against 97
+    negligible = found["cpu-active-target", "cpu-active-target-no-representation"]  # 70 against 70 +- 2
+    assert negligible["difference"] == pytest.approx(0.0, abs=1e-9) and negligible["verdict"] == "holds"
+    assert found["cpu-active-learned-6d", "cpu-active-target"]["verdict"] == "reversed"  # 10 against 70
+    assert found["cpu-active-learned-4d", "cpu-active-learned-6d"]["ci_low"] > 0
+    markdown = out.read_text()
+    rows = table_cells(markdown)
+    assert rows["cpu-active-target"][1] == "84%"  # the paper's number beside its CPU scale
+    assert rows["cpu-active-target"][4] == "25.0% (2 of 3 seeds)"
+    assert "| active-target beats passive-target |" in markdown and "**holds**" in markdown
+    assert "they do not reproduce the paper's numbers" in markdown
+    assert iio.imread(out.with_name("figure4.png")).ndim == 3
+
+
+def test_bootstrap_interval_and_verdicts_on_known_seeds():
+    same = bootstrap_difference([0.6, 0.6, 0.6], [0.4, 0.4])
+    assert (same.difference, same.low, same.high) == pytest.approx((0.2, 0.2, 0.2))  # seeds agree: no width
+    assert bootstrap_difference([0.2, 0.9], [0.5]) == bootstrap_difference([0.2, 0.9], [0.5])  # seeded
+    spread = bootstrap_difference([0.2, 0.9], [0.5])  # resamples: 0.2 (1/4), 0.55 (1/2), 0.9 (1/4), minus 0.5
+    assert (spread.low, spread.high) == pytest.approx((-0.3, 0.4))
+    better = Ordering("a", "b", "better", "")
+    assert verdict(better, spread) == "not resolved"
+    assert verdict(better, same) == "holds"
+    assert verdict(better, Difference(-0.2, -0.3, -0.1)) == "reversed"
+    negligible = Ordering("a", "b", "negligible", "")
+    assert verdict(negligible, Difference(0.02, -0.05, 0.08)) == "holds"
+    assert verdict(negligible, Difference(0.2, 0.15, 0.25)) == "reversed"
+    assert verdict(negligible, spread) == "not resolved"
+    with pytest.raises(ValueError, match="at least one seed"):
+        bootstrap_difference([], [0.5])
+
+
+COMMITTED_TABLE = Path(__file__).resolve().parents[1] / "results" / "table1-cpu"
+
+
+def test_table_only_rebuilds_the_committed_cpu_table(tmp_path: Path, monkeypatch):
+    copy = tmp_path / "results" / "table1-cpu"
+    for path in COMMITTED_TABLE.rglob("*"):  # the committed small files only: no checkpoint is needed
+        if path.is_file() and path.suffix in (".json", ".csv", ".md"):
+            (copy / path.relative_to(COMMITTED_TABLE)).parent.mkdir(parents=True, exist_ok=True)
+            (copy / path.relative_to(COMMITTED_TABLE)).write_bytes(path.read_bytes())
+    for name in ("table1.md", "table1.json", "figure4.png"):
+        (copy / name).unlink(missing_ok=True)
+    monkeypatch.chdir(tmp_path)
+
+    campaign.run(Table1Args(scale="cpu", out=Path("results/table1-cpu"), table_only=True))
+
+    for name in ("table1.md", "table1.json"):
+        assert (copy / name).read_text() == (COMMITTED_TABLE / name).read_text(), name
+    assert iio.imread(copy / "figure4.png").ndim == 3
+
+
 # ------------------------------------------------------------------------------------ one real training run
 @pytest.fixture(scope="module")
 def table1_out(tmp_path_factory: pytest.TempPathFactory) -> Path:
@@ -199,8 +303,12 @@ def test_table1_command_trains_writes_the_table_then_skips_the_finished_run(tabl
     assert rows["smoke"][2] == (
         f"{100 * rate:.1f}% ({result['successes']}/{result['episodes']}) [{100 * low:.1f}%, {100 * high:.1f}%]"
     )
-    assert rows["smoke"][5] == "2"
+    assert rows["smoke"][6] == "2"
     assert len(run_checkpoints(run_dir)) == 2
+    blind = json.loads((run_dir / "eval" / "blind_both_00000002.json").read_text())  # the final policy, blind
+    assert blind["blind"] == "both" and blind["episodes"] == 2 and blind["grasps"] == 2  # paired: rounded up to even
+    assert json.loads((table1_out / "table1.json").read_text())["rows"][0]["seeds"][0]["blind"]["episodes"] == 2
+    assert (table1_out / "figure4.png").exists()
 
     def no_training(*args, **kwargs):
         raise AssertionError("a finished run was trained again")

@@ -10,7 +10,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from apr.train.config import PRESETS, ConfigError, TrainConfig, preset
+from apr.reproduce import campaign
+from apr.reproduce.paper import PAPER_PRESETS
+from apr.train.config import (
+    PRESETS,
+    SCALE_FREE_MODEL_FIELDS,
+    TABLE1_CPU_GRASPS,
+    ConfigError,
+    TrainConfig,
+    preset,
+)
 from apr.train.evaluation import wilson_interval
 from apr.train.replay import ReplayBuffer, ReplaySpec
 from apr.train.rollout import episode_seed
@@ -114,18 +123,45 @@ def test_presets_resolve_consistently_and_round_trip(name: str):
 
 def test_preset_table_matches_the_paper():
     assert set(PRESETS) == {
-        "active-target", "passive-target", "active-target-no-logpolar", "active-target-no-representation",
-        "active-learned-6d", "active-learned-4d", "cpu-4d", "cpu-learned-4d", "cpu-learned-4d-grasp-reward", "smoke",
+        *PAPER_PRESETS, *(f"cpu-{name}" for name in PAPER_PRESETS), "cpu-4d", "cpu-learned-4d-grasp-reward", "smoke",
     }  # fmt: skip
-    learned, grasp_reward = preset("cpu-learned-4d"), preset("cpu-learned-4d-grasp-reward")
+    learned, grasp_reward = preset("cpu-active-learned-4d"), preset("cpu-learned-4d-grasp-reward")
     assert learned.model.fixation_reward == "proximity" and grasp_reward.model.fixation_reward == "grasp"
     assert learned.model.replace(fixation_reward="grasp", fixation_relabels=0) == grasp_reward.model  # one change
+    assert preset("cpu-learned-4d") == learned  # its earlier name
     assert preset("passive-target").env.env_id == "apr/PassiveGrasp-v0"
     assert preset("active-target-no-logpolar").env.foveation == "resize"
     assert preset("active-target-no-representation").model.representation is False
     assert preset("active-learned-4d").env.dof == 4 and preset("active-learned-4d").env.target == "learned"
     with pytest.raises(ValueError, match="active-target"):
         preset("no-such-preset")
+
+
+@pytest.mark.parametrize("name", PAPER_PRESETS)
+def test_the_cpu_scale_keeps_the_structure_and_the_recipe_of_each_paper_preset(name: str):
+    paper, cpu = preset(name), preset(f"cpu-{name}")
+    structure = ("env_id", "dof", "target", "foveation", "reach_scale", "reveal_target")
+    assert [getattr(cpu.env, field) for field in structure] == [getattr(paper.env, field) for field in structure]
+    for field in SCALE_FREE_MODEL_FIELDS:  # the ablation switch and the learning recipe, at both scales
+        assert getattr(cpu.model, field) == getattr(paper.model, field), field
+    assert paper.model.heads_see_proprioception and paper.model.init_temperature == 0.01  # the recipe
+    assert paper.model.heads_see_fixation == paper.env.learned_fixation  # the point chosen, never the target
+    assert paper.model.fixation_reward == ("proximity" if paper.env.learned_fixation else "grasp")
+    assert cpu.model.encoder_channels < paper.model.encoder_channels  # the scale: sizes and budgets
+    assert (cpu.total_grasps, cpu.max_train_minutes, cpu.env.render_size) == (TABLE1_CPU_GRASPS, 0.0, 128)
+    assert (paper.total_grasps, paper.env.render_size) == (25_000 if name == "active-learned-4d" else 70_000, 256)
+
+
+def test_cpu_campaign_plans_every_rows_seed_0_first_with_its_seed_count(tmp_path: Path):
+    args = campaign.Table1Args(scale="cpu", out=tmp_path)
+    plans = campaign.plan_runs(args.preset_names(), args.seed_lists(), tmp_path)
+    counts = {name: sum(plan.preset == f"cpu-{name}" for plan in plans) for name in PAPER_PRESETS}
+    assert counts == {"active-target": 5, "passive-target": 5, "active-target-no-logpolar": 3,
+                      "active-target-no-representation": 3, "active-learned-6d": 3, "active-learned-4d": 5}  # fmt: skip
+    assert [plan.preset for plan in plans[:6]] == [f"cpu-{name}" for name in PAPER_PRESETS]
+    assert [plan.seed for plan in plans] == sorted(plan.seed for plan in plans)
+    assert all(plan.config.total_grasps == TABLE1_CPU_GRASPS for plan in plans)
+    assert campaign.command_line(args) == f"apr reproduce table1 --scale cpu --out {tmp_path}"
 
 
 def test_presets_are_independent_copies():

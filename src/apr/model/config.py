@@ -78,8 +78,8 @@ class ModelConfig:
     """Conv block of every actor and critic: 3x3 kernels with these channels (paper, Method B)."""
     heads_see_proprioception: bool = False
     """False: the actors and critics see r only (paper, Method B: g and v reach the policy only through the
-    encoder). True (ours, the CPU presets): they also see the gripper pose g tiled beside r (docs/decisions.md:
-    the encoder, trained by the ELBO only, keeps little of g in r)."""
+    encoder). True (ours, the recipe of every Table 1 preset, ``apr.train.config.RECIPE``): they also see the gripper
+    pose g tiled beside r (docs/decisions.md: the encoder, trained by the ELBO only, keeps little of g in r)."""
     heads_see_fixation: bool = False
     """True (ours): the heads also see the fixation point f and f - tip, tiled beside r. Only where the
     observation has f: the point a learned fixation chose, or the target's true centre in the labelled
@@ -97,17 +97,18 @@ class ModelConfig:
     tau: float = 0.005
     """Polyak rate of the soft target-critic update (Haarnoja et al. 2018)."""
     init_temperature: float = 1.0
-    """Initial entropy temperature alpha (Haarnoja et al. 2018b reference code: 1.0)."""
+    """Initial entropy temperature alpha (Haarnoja et al. 2018b reference code: 1.0; the Table 1 presets' recipe:
+    0.01, docs/decisions.md)."""
     batch_size: int = 256
     """Grasp transitions per update (Haarnoja et al. 2018: 256)."""
     fixation_batch_size: int = 256
     """Fixation (bandit) samples per update (Haarnoja et al. 2018: 256)."""
     fixation_reward: Literal["grasp", "proximity"] = "grasp"
     """What the fixation bandit regresses. "grasp": the episode's sparse grasp reward (paper, Method A).
-    "proximity" (ours, the CPU recipe): ``1 - min(d, R) / R``, d the distance from the chosen point to the nearest
-    object centre of the scene at the fixation action (the simulator's, as rewards may be), R =
-    ``fixation_proximity_radius`` (docs/decisions.md: at CPU budgets the grasp reward teaches a place, not to
-    look at objects)."""
+    "proximity" (ours, the recipe of the learned-fixation presets): ``1 - min(d, R) / R``, d the distance from the
+    chosen point to the nearest object centre of the scene at the fixation action (the simulator's, as rewards may
+    be), R = ``fixation_proximity_radius`` (docs/decisions.md: at CPU budgets the grasp reward teaches a place, not
+    to look at objects)."""
     fixation_proximity_radius: float = 0.15
     """m: R of the proximity reward (ours; beyond it a point earns 0)."""
     fixation_relabels: int = 0

@@ -14,10 +14,11 @@ imports the cluster layer. Either way the table is built from the run folders, a
 from __future__ import annotations
 
 import dataclasses
+import json
 import multiprocessing
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -27,9 +28,11 @@ import torch
 
 from apr.commands import checks
 from apr.model.config import ModelConfig
-from apr.reproduce.runs import final_eval
-from apr.reproduce.table import PAPER_PRESETS, write_table1
-from apr.train.config import PRESETS, TrainConfig, preset
+from apr.reproduce.paper import PAPER_PRESETS
+from apr.reproduce.runs import final_eval, read_config, read_run
+from apr.reproduce.table import write_table1
+from apr.train.checkpoints import write_text_atomically
+from apr.train.config import CPU_PREFIX, PRESETS, SCALE_FREE_MODEL_FIELDS, TrainConfig, preset
 from apr.train.workers import WorkersFactory
 
 RunStatus = Literal["done", "resume", "new", "restart"]
@@ -39,12 +42,16 @@ RunStatus = Literal["done", "resume", "new", "restart"]
 class Table1Args:
     """Train the presets of the paper's Table 1 over several seeds (resumable), then write table1.md."""
 
-    seeds: int = 2
-    """Seeds per preset: 0, 1, ..., SEEDS-1 (the paper's Figure 4 used 2)."""
+    scale: Literal["paper", "cpu"] = "paper"
+    """paper: the presets at paper size (GPU runs of 70K grasps). cpu: each one's ``cpu-`` preset, the same
+    structure and recipe with tiny networks and a budget for a 2-core CPU (``apr presets``)."""
+    seeds: int = 0
+    """Seeds per preset: 0, 1, ..., SEEDS-1; 0 = the scale's: 2 at paper scale (the paper's Figure 4 used 2); at
+    CPU scale 5 for active-target, passive-target and active-learned-4d, 3 for the others."""
     grasps: int | None = None
-    """Grasps per run; default: each preset's own budget (70K; 25K for active-learned-4d)."""
+    """Grasps per run; default: each preset's own budget (70K; 25K for active-learned-4d; 600 at CPU scale)."""
     presets: tuple[str, ...] = PAPER_PRESETS
-    """Presets to run (apr presets lists them)."""
+    """Presets to run, by their paper names (apr presets lists them); with --scale cpu each runs as cpu-PRESET."""
     out: Path = Path("runs/table1")
     """Parent folder of the runs (PRESET__sSEED) and of table1.md."""
     parallel: int = 1
@@ -74,8 +81,28 @@ class Table1Args:
     """Grasp transitions kept in replay; default: the preset's (50,000: about 2.5 GB with the target mask)."""
     tiny_model: bool = False
     """Use the tiny model sizes of the smoke preset (a CPU check of the whole campaign, not the paper)."""
+    blind: bool = True
+    """Evaluate each finished run's final policy given another scene's images in every phase (``apr eval --blind
+    both``), on as many held-out episodes as its final evaluation, into ``RUN/eval/blind_both_GRASPS.json``."""
     table_only: bool = False
-    """Train nothing: write table1.md from the runs already under OUT."""
+    """Train and evaluate nothing: write the table (and, at CPU scale, table1.json and figure4.png) from the runs
+    already under OUT."""
+
+    def preset_names(self) -> list[str]:
+        """The presets the runs start from: the paper names, or their CPU scale."""
+        return [CPU_PREFIX + name if self.scale == "cpu" else name for name in self.presets]
+
+    def seed_lists(self) -> dict[str, list[int]]:
+        """Each preset's seeds (:meth:`preset_names`)."""
+        return {
+            name: list(range(self.seeds or (CPU_TABLE1_SEEDS.get(paper, 3) if self.scale == "cpu" else 2)))
+            for paper, name in zip(self.presets, self.preset_names(), strict=True)
+        }
+
+
+CPU_TABLE1_SEEDS = {"active-target": 5, "passive-target": 5, "active-learned-4d": 5}
+"""Seeds per row at CPU scale where more than 3: the rows of the orderings the campaign must resolve first
+(active against passive; the learned 4-DoF fixation)."""
 
 
 @dataclass
@@ -88,6 +115,8 @@ class PlannedRun:
     config: TrainConfig
     """The configuration a new run starts with (a resumed run keeps its saved one, with this budget)."""
     status: RunStatus
+    blind: bool = False
+    """Once trained, also evaluate the final policy blind (:func:`evaluate_blind`)."""
 
 
 def run_name(preset_name: str, seed: int) -> str:
@@ -100,40 +129,45 @@ def campaign_config(
 ) -> TrainConfig:
     """The configuration of one campaign run: the preset, the seed, the run folder and any overrides."""
     config = preset(preset_name)
-    if tiny_model:  # keep the preset's ablation switch
-        config.model = ModelConfig.tiny(representation=config.model.representation)
+    if tiny_model:  # keep the preset's ablation switch and recipe
+        config.model = ModelConfig.tiny(**{name: getattr(config.model, name) for name in SCALE_FREE_MODEL_FIELDS})
     return dataclasses.replace(
         config, seed=seed, runs_dir=out, run_name=run_name(preset_name, seed), **(overrides or {})
     )
 
 
 def run_status(run_dir: Path, total_grasps: int) -> RunStatus:
-    """done: it has an evaluation at or beyond ``total_grasps``, or the final one of a run that ran out of
-    training time; resume: it has a checkpoint; new: no run folder; restart: a run folder without a checkpoint."""
+    """done: it has an evaluation at or beyond ``total_grasps``, or the final one of a run of that budget that ran
+    out of training time; resume: it has a checkpoint; new: no run folder; restart: a run folder without a
+    checkpoint. A finished run asked for more grasps than it had resumes."""
     from apr.train.trainer import latest_checkpoint
 
     if not (run_dir / "config.json").exists():
         return "new"
     result = final_eval(run_dir)
-    if result is not None and (int(result["grasps"]) >= total_grasps or result.get("final")):
-        return "done"
+    if result is not None:
+        same_budget = int(read_config(run_dir).get("total_grasps", 0)) >= total_grasps
+        if int(result["grasps"]) >= total_grasps or (result.get("final") and same_budget):
+            return "done"
     return "resume" if latest_checkpoint(run_dir) is not None else "restart"
 
 
 def plan_runs(
     presets: Sequence[str],
-    seeds: Sequence[int],
+    seeds: Sequence[int] | Mapping[str, Sequence[int]],
     out: Path,
     overrides: dict[str, Any] | None = None,
     tiny_model: bool = False,
 ) -> list[PlannedRun]:
-    """Every (preset, seed) with its run folder, configuration and status."""
+    """Every (preset, seed) with its run folder, configuration and status, seed by seed (every preset's seed 0
+    first, so that a campaign cut short has every row), ``seeds`` for every preset or by preset."""
     unknown = [name for name in presets if name not in PRESETS]
     if unknown:
         raise SystemExit(f"unknown preset(s) {', '.join(unknown)}; the presets are: {', '.join(PRESETS)}")
+    seed_lists = seeds if isinstance(seeds, Mapping) else {name: list(seeds) for name in presets}
     plans = []
-    for name in presets:
-        for seed in seeds:
+    for seed in sorted({seed for name in presets for seed in seed_lists[name]}):
+        for name in (name for name in presets if seed in seed_lists[name]):
             config = campaign_config(name, seed, out, overrides, tiny_model)
             run_dir = out / config.run_name
             plans.append(PlannedRun(name, seed, run_dir, config, run_status(run_dir, config.total_grasps)))
@@ -146,9 +180,10 @@ the runs train (this machine, a Ray cluster, a Slurm job array). The caller choo
 
 
 def train_planned(plan: PlannedRun, torch_threads: int = 0, workers: WorkersFactory | None = None) -> Path:
-    """Train one planned run to its budget (start, resume or restart it); return its folder. ``workers`` opens
-    its environment workers (default: local processes) and must serve ``plan.config.backend``; a resumed run
-    trains where the plan says (``backend`` and ``ray_address`` may change on resume)."""
+    """Train one planned run to its budget (start, resume or restart it), then, with ``plan.blind``, evaluate it
+    blind; return its folder. ``workers`` opens its environment workers (default: local processes) and must serve
+    ``plan.config.backend``; a resumed run trains where the plan says (``backend`` and ``ray_address`` may change
+    on resume)."""
     from apr.train.trainer import Trainer
 
     if torch_threads > 0:
@@ -157,14 +192,68 @@ def train_planned(plan: PlannedRun, torch_threads: int = 0, workers: WorkersFact
         saved = Trainer.saved_config(plan.run_dir)
         config = dataclasses.replace(saved, total_grasps=plan.config.total_grasps, backend=plan.config.backend,
                                      ray_address=plan.config.ray_address)  # fmt: skip
-        return Trainer.resume(plan.run_dir, config, workers=workers).train()
-    if plan.status == "restart":  # no checkpoint: what it logged cannot be continued
-        print(f"{plan.run_dir}: no checkpoint, starting it over")
-        (plan.run_dir / "metrics.csv").unlink(missing_ok=True)
-        for stale in (plan.run_dir / "eval").glob("eval_*.json"):
-            stale.unlink()
-    plan.run_dir.mkdir(parents=True, exist_ok=True)
-    return Trainer(plan.config, run_dir=plan.run_dir, workers=workers).train()
+        Trainer.resume(plan.run_dir, config, workers=workers).train()
+    else:
+        if plan.status == "restart":  # no checkpoint: what it logged cannot be continued
+            print(f"{plan.run_dir}: no checkpoint, starting it over")
+            (plan.run_dir / "metrics.csv").unlink(missing_ok=True)
+            for stale in [*(plan.run_dir / "eval").glob("eval_*.json"), *blind_eval_paths(plan.run_dir)]:
+                stale.unlink()
+        plan.run_dir.mkdir(parents=True, exist_ok=True)
+        Trainer(plan.config, run_dir=plan.run_dir, workers=workers).train()
+    if plan.blind:
+        evaluate_blind(plan.run_dir, workers=workers)
+    return plan.run_dir
+
+
+BLIND_MODE = "both"
+"""The campaign's blind baseline: another scene's images in every phase (for an environment target, the only
+phase), so that what remains is what a policy does without seeing its scene."""
+
+
+def blind_eval_path(run_dir: Path, grasps: int) -> Path:
+    """Where :func:`evaluate_blind` writes the blind evaluation of the policy at ``grasps``."""
+    return run_dir / "eval" / f"blind_{BLIND_MODE}_{grasps:08d}.json"
+
+
+def blind_eval_paths(run_dir: Path) -> list[Path]:
+    """Every blind evaluation a run folder holds."""
+    return sorted((run_dir / "eval").glob("blind_*.json"))
+
+
+def needs_blind(run_dir: Path) -> bool:
+    """True when the run's final evaluation has no blind evaluation beside it."""
+    result = final_eval(run_dir)
+    return result is not None and not blind_eval_path(run_dir, int(result["grasps"])).exists()
+
+
+def evaluate_blind(run_dir: Path, workers: WorkersFactory | None = None) -> Path | None:
+    """Evaluate the run's final policy given another scene's images (:data:`BLIND_MODE`) on as many held-out
+    episodes as its final evaluation (the same evaluation seeds), and write :func:`blind_eval_path`; skipped
+    (None) when it is there already, or when the newest checkpoint is not the final evaluation's policy."""
+    from apr.reproduce.policies import load_run
+    from apr.train.evaluation import evaluate
+
+    result = final_eval(run_dir)
+    if result is None or not needs_blind(run_dir):
+        return None
+    snapshot = load_run(run_dir)
+    if snapshot.grasps != int(result["grasps"]):
+        print(f"{run_dir}: its newest checkpoint is at {snapshot.grasps} grasps, its final evaluation at "
+              f"{result['grasps']}: no blind evaluation")  # fmt: skip
+        return None
+    config = snapshot.config
+    print(f"{run_dir}: its final policy on {result['episodes']} held-out episodes, another scene's images in every "
+          "phase ...", flush=True)  # fmt: skip
+    blind = evaluate(snapshot.agent, config.env, int(result["episodes"]), "test",
+                     config.eval_workers or config.workers, workers, trained_renderer=snapshot.renderer,
+                     on_mismatch="warn", blind=BLIND_MODE).to_dict()  # fmt: skip
+    blind.update(grasps=snapshot.grasps, blind=BLIND_MODE)
+    path = blind_eval_path(run_dir, snapshot.grasps)
+    write_text_atomically(path, json.dumps(blind, indent=2))
+    print(f"{run_dir}: blind {blind['success_rate']:.1%} ({blind['successes']}/{blind['episodes']}), with its own "
+          f"images {result['success_rate']:.1%}")  # fmt: skip
+    return path
 
 
 def _train_logged(plan: PlannedRun, torch_threads: int, workers: WorkersFactory | None = None) -> None:
@@ -238,7 +327,8 @@ def overrides_from_args(args: Table1Args) -> dict[str, Any]:
 
 def command_line(args: Table1Args) -> str:
     """The ``apr reproduce table1`` command line that gives ``args``."""
-    parts = ["apr reproduce table1", f"--seeds {args.seeds}"]
+    parts = ["apr reproduce table1"] + ([f"--scale {args.scale}"] if args.scale != "paper" else [])
+    parts += [f"--seeds {args.seeds}"] if args.seeds else []
     if args.grasps is not None:
         parts.append(f"--grasps {args.grasps}")
     if tuple(args.presets) != PAPER_PRESETS:
@@ -251,6 +341,8 @@ def command_line(args: Table1Args) -> str:
             parts.append(f"--{name.replace('_', '-')} {getattr(args, name)}")
     if args.tiny_model:
         parts.append("--tiny-model")
+    if not args.blind:
+        parts.append("--no-blind")
     return " ".join(parts)
 
 
@@ -258,7 +350,9 @@ def problems(args: Table1Args) -> list[str | None]:
     """What makes ``args`` unrunnable, each naming its flag (None entries: fine); the cluster options are the
     caller's to check (``apr.commands.backends.cluster_problems``)."""
     return [
-        checks.at_least("--seeds", args.seeds, 1), checks.at_least("--parallel", args.parallel, 1),
+        checks.at_least("--seeds", args.seeds, 0), checks.at_least("--parallel", args.parallel, 1),
+        "--tiny-model: the presets of --scale cpu are tiny already" if args.tiny_model and args.scale == "cpu"
+        else None,
         checks.at_least("--workers", args.workers, 0),
         *(checks.at_least(f"--{name.replace('_', '-')}", getattr(args, name), 1)
           for name in ("grasps", "eval_episodes", "replay_capacity") if getattr(args, name) is not None),
@@ -282,19 +376,22 @@ def run(args: Table1Args, overrides: dict[str, Any] | None = None, executor: Cam
             raise SystemExit(f"apr reproduce table1: error: --backend {args.backend} needs its campaign executor, "
                              "which apr.commands.backends.campaign_executor(args) gives")  # fmt: skip
         executor = partial(run_campaign, parallel=args.parallel)
-    seeds = list(range(args.seeds))
-    plans = plan_runs(
-        args.presets, seeds, args.out, {**overrides_from_args(args), **(overrides or {})}, args.tiny_model
-    )
+    plans = plan_runs(args.preset_names(), args.seed_lists(), args.out,
+                      {**overrides_from_args(args), **(overrides or {})}, args.tiny_model)  # fmt: skip
+    plans = [dataclasses.replace(plan, blind=args.blind) for plan in plans]
     failed = []
     if not args.table_only:
+        for plan in plans:  # finished before blind evaluations were asked for
+            if plan.blind and plan.status == "done":
+                evaluate_blind(plan.run_dir)
         failed = [plan for plan, code in executor(plans) if code != 0]
     present = [plan.run_dir for plan in plans if (plan.run_dir / "config.json").exists()]
+    finished = sum(read_run(run_dir).finished for run_dir in present)
     source = (
-        f"Built from the final evaluations of the runs under `{args.out}` ({len(present)} of {len(plans)} "
-        f"planned runs present) by `{command_line(args)}`."
+        f"Built from the final evaluations of the runs under `{args.out}` ({finished} of {len(plans)} planned runs "
+        f"finished; a run still training is left out) by `{command_line(args)}`."
     )
-    path = write_table1(present, args.out / "table1.md", args.presets, source)
+    path = write_table1(present, args.out / "table1.md", args.preset_names(), source)
     print(f"wrote {path}")
     if failed:
         raise SystemExit(f"{len(failed)} run(s) failed: " + ", ".join(str(plan.run_dir) for plan in failed))

@@ -8,7 +8,7 @@ grasps, each seed's curve is interpolated linearly within its own range.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
@@ -19,8 +19,8 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from apr.commands import checks
-from apr.reproduce.runs import eval_curve, find_run_dirs, read_config
-from apr.reproduce.table import PAPER_TABLE1
+from apr.reproduce.paper import PAPER_TABLE1, paper_row
+from apr.reproduce.runs import eval_curve, find_run_dirs, read_config, run_preset
 
 
 @dataclass
@@ -55,9 +55,7 @@ def preset_curves(run_dirs: Iterable[Path]) -> list[PresetCurve]:
         config = read_config(run_dir)
         grasps, success = eval_curve(run_dir)
         if len(grasps):
-            runs.setdefault(str(config.get("preset", "unknown")), []).append(
-                (int(config.get("seed", 0)), grasps, success)
-            )
+            runs.setdefault(run_preset(config), []).append((int(config.get("seed", 0)), grasps, success))
     curves = []
     for name, seed_curves in runs.items():
         grid = np.unique(np.concatenate([grasps for _, grasps, _ in seed_curves]))
@@ -73,13 +71,16 @@ def preset_curves(run_dirs: Iterable[Path]) -> list[PresetCurve]:
     return curves
 
 
-def plot_learning_curves(run_dirs: Iterable[Path], title: str = "") -> Figure:
-    """The figure: one line (with markers) per preset, mean +- std across seeds shaded."""
+def plot_learning_curves(run_dirs: Iterable[Path], title: str = "",
+                         blind: Mapping[str, tuple[float, float]] | None = None) -> Figure:  # fmt: skip
+    """The figure: one line (with markers) per preset, mean +- std across seeds shaded; ``blind`` (preset ->
+    grasps, mean success given another scene's images) adds a cross in the preset's colour."""
     curves = preset_curves(run_dirs)
     figure = Figure(figsize=(7.5, 4.5), layout="constrained")
     axes = figure.subplots()
     for curve in curves:
-        paper = f"paper: {PAPER_TABLE1[curve.preset].text}" if curve.preset in PAPER_TABLE1 else "not in the paper"
+        row = paper_row(curve.preset)
+        paper = f"paper: {PAPER_TABLE1[row].text}" if row else "not in the paper"
         seeds = f"{len(curve.seeds)} seed{'s' if len(curve.seeds) > 1 else ''}"
         (line,) = axes.plot(
             curve.grasps, 100 * curve.mean, marker="o", markersize=3, label=f"{curve.preset} ({seeds}; {paper})"
@@ -92,12 +93,17 @@ def plot_learning_curves(run_dirs: Iterable[Path], title: str = "") -> Figure:
             alpha=0.2,
             linewidth=0,
         )
+        if blind and curve.preset in blind:
+            grasps, rate = blind[curve.preset]
+            axes.plot([grasps], [100 * rate], marker="x", markersize=8, color=line.get_color(), linestyle="none")
     most = max((int(curve.grasps[-1]) for curve in curves), default=0)
     axes.xaxis.set_major_locator(MaxNLocator(integer=True))
     axes.set_xlabel("training grasps")
     axes.set_ylabel("held-out success (%)")
     axes.set_ylim(-2, 102)
     axes.grid(alpha=0.3)
+    if blind:
+        axes.plot([], [], marker="x", color="gray", linestyle="none", label="x: final policy, another scene's images")
     if curves:
         axes.legend(fontsize=7, loc="best")
     else:

@@ -28,6 +28,25 @@ class RunSummary:
     """``config.json`` as a dict."""
     final_eval: dict | None
     """The evaluation with the most grasps (``eval/eval_*.json``), or None if the run has none yet."""
+    blind_eval: dict | None = None
+    """The blind evaluation of the final evaluation's policy (``eval/blind_MODE_GRASPS.json``, another scene's
+    images), or None."""
+    trained_as: str = ""
+    """The preset's name when the run was made, where it has been renamed since (``RENAMED_PRESETS``)."""
+
+    @property
+    def finished(self) -> bool:
+        """True when the run has its final evaluation: at its grasp budget, or the last of a run that ran out of
+        training time (``final`` in the file)."""
+        result = self.final_eval
+        return result is not None and (bool(result.get("final")) or int(result["grasps"]) >= self.total_grasps)
+
+    @property
+    def train_minutes(self) -> float | None:
+        """Training minutes (evaluations not counted) up to the final evaluation, where it records them."""
+        if self.final_eval is None or "train_s" not in self.final_eval:
+            return None
+        return float(self.final_eval["train_s"]) / 60
 
     @property
     def total_grasps(self) -> int:
@@ -79,14 +98,35 @@ def final_eval(run_dir: Path) -> dict | None:
     return results[-1] if results else None
 
 
+def run_preset(config: dict) -> str:
+    """The preset a run started from, by its current name."""
+    from apr.train.config import RENAMED_PRESETS
+
+    name = str(config.get("preset", "unknown"))
+    return RENAMED_PRESETS.get(name, name)
+
+
+def blind_eval(run_dir: Path, grasps: int) -> dict | None:
+    """The run's blind evaluation of its policy at ``grasps`` (``eval/blind_*_GRASPS.json``), or None."""
+    for path in sorted((run_dir / "eval").glob(f"blind_*_{grasps:08d}.json")):
+        result = json.loads(path.read_text())
+        result["path"] = str(path)
+        return result
+    return None
+
+
 def read_run(run_dir: Path) -> RunSummary:
     config = read_config(run_dir)
+    final = final_eval(run_dir)
+    name = str(config.get("preset", "unknown"))
     return RunSummary(
         run_dir=run_dir,
-        preset=str(config.get("preset", "unknown")),
+        preset=run_preset(config),
         seed=int(config.get("seed", 0)),
         config=config,
-        final_eval=final_eval(run_dir),
+        final_eval=final,
+        blind_eval=blind_eval(run_dir, int(final["grasps"])) if final is not None else None,
+        trained_as=name if run_preset(config) != name else "",
     )
 
 

@@ -2,44 +2,28 @@
 
 Every number comes from the runs' final evaluations (``eval/eval_XXXXXXXX.json``, the one with the most
 grasps): the pooled success rate and its 95% Wilson interval over the episodes of all seeds, and the mean and
-standard deviation of the per-seed rates (the spread Figure 4 shades).
+standard deviation of the per-seed rates (the spread Figure 4 shades); the blind success of each final policy
+(``eval/blind_MODE_XXXXXXXX.json``: another scene's images); and, for each ordering the paper claims, the
+difference of the row means with its bootstrap interval across seeds (:mod:`apr.reproduce.orderings`).
+:func:`write_table1` writes ``table1.md``, ``table1.json`` (the same numbers, per seed) and ``figure4.png``.
 """
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from apr.reproduce.orderings import NEGLIGIBLE_POINTS, PAPER_ORDERINGS, bootstrap_difference, verdict
+from apr.reproduce.paper import PAPER_PRESETS, PAPER_TABLE1, paper_row
+from apr.reproduce.plot import plot_learning_curves
 from apr.reproduce.runs import RunSummary, find_run_dirs, read_run
-from apr.train.config import PRESETS
+from apr.train.checkpoints import write_text_atomically
+from apr.train.config import CPU_PREFIX, PRESETS, TABLE1_CPU_GRASPS
 from apr.train.evaluation import wilson_interval
-
-
-@dataclass(frozen=True)
-class PaperResult:
-    """What the paper's Table 1 (or its text) says about a preset."""
-
-    text: str
-    """As the paper puts it."""
-    budget_grasps: int | None
-    """The grasps behind the paper's number, where the paper says (otherwise our preset's budget is shown)."""
-
-
-PAPER_TABLE1: dict[str, PaperResult] = {
-    "active-target": PaperResult("84%", None),
-    "passive-target": PaperResult("76%", None),
-    "active-target-no-logpolar": PaperResult("79%", None),
-    "active-target-no-representation": PaperResult('"negligible improvement" (no number)', None),
-    "active-learned-6d": PaperResult("85% after 70K grasps", 70_000),
-    "active-learned-4d": PaperResult("85% after 25K grasps", 25_000),
-}
-"""The paper's Table 1, and its section 4C for the ablation without representation learning."""
-
-PAPER_PRESETS: tuple[str, ...] = tuple(PAPER_TABLE1)
-"""The presets of Table 1, in the paper's order."""
 
 
 @dataclass
@@ -49,8 +33,7 @@ class TableRow:
     preset: str
     paper: str
     runs: list[RunSummary] = field(default_factory=list)
-    """Runs of this preset with a final evaluation."""
-    runs_without_eval: list[RunSummary] = field(default_factory=list)
+    """Runs of this preset with a final evaluation (:attr:`RunSummary.finished`)."""
 
     @property
     def episodes(self) -> int:
@@ -95,6 +78,15 @@ class TableRow:
         """The grasps of each run's final evaluation."""
         return [int(run.final_eval["grasps"]) for run in self.runs]
 
+    @property
+    def blind_rates(self) -> list[float]:
+        """The blind success of each run whose final policy was evaluated blind."""
+        return [float(run.blind_eval["success_rate"]) for run in self.runs if run.blind_eval is not None]
+
+    @property
+    def blind_mean(self) -> float | None:
+        return float(np.mean(self.blind_rates)) if self.blind_rates else None
+
 
 def format_percent(rate: float) -> str:
     """0.625 -> "62.5%" (the table's format for rates and interval ends)."""
@@ -119,10 +111,12 @@ def build_table1(run_dirs: Iterable[Path], presets: Sequence[str] | None = None)
     order = list(presets) if presets is not None else [*PAPER_PRESETS, *(p for p in found if p not in PAPER_TABLE1)]
     rows = []
     for name in order:
-        paper = PAPER_TABLE1[name].text if name in PAPER_TABLE1 else "(not in the paper)"
+        row_name = paper_row(name)
+        paper = PAPER_TABLE1[row_name].text if row_name else "(not in the paper)"
         row = TableRow(preset=name, paper=paper)
         for run in sorted((run for run in runs if run.preset == name), key=lambda run: run.seed):
-            (row.runs if run.final_eval is not None else row.runs_without_eval).append(run)
+            if run.finished:  # a run still training has no final evaluation to report
+                row.runs.append(run)
         rows.append(row)
     return rows
 
@@ -142,8 +136,7 @@ def _budget(name: str) -> str:
 
 def _row_cells(row: TableRow) -> list[str]:
     if not row.runs:
-        pending = f" ({len(row.runs_without_eval)} run(s) without an evaluation yet)" if row.runs_without_eval else ""
-        return [row.preset, row.paper, "not run" + pending, "", "0", "", "", _budget(row.preset)]
+        return [row.preset, row.paper, "not run", "", "", "0", "", "", _budget(row.preset)]
     low, high = row.pooled_interval
     pooled = (
         f"{format_percent(row.pooled_rate)} ({row.successes}/{row.episodes}) [{format_percent(low)}, "
@@ -151,6 +144,8 @@ def _row_cells(row: TableRow) -> list[str]:
     )
     spread = format_percent(row.seed_mean)
     spread += f" ± {100 * row.seed_std:.1f} pts" if row.seed_std is not None else " (1 seed: no spread)"
+    blind = row.blind_rates
+    blind_text = f"{format_percent(row.blind_mean)} ({len(blind)} of {len(row.runs)} seeds)" if blind else "-"
     seeds = ", ".join(f"s{run.seed}" for run in row.runs)
     grasps = sorted(set(row.grasps))
     grasps_text = format_grasps(grasps[0])
@@ -161,6 +156,7 @@ def _row_cells(row: TableRow) -> list[str]:
         row.paper,
         pooled,
         spread,
+        blind_text,
         f"{len(row.runs)} ({seeds})",
         grasps_text,
         str(row.episodes),
@@ -175,6 +171,7 @@ def render_table1(rows: Sequence[TableRow], source: str = "") -> str:
         "paper (Table 1)",
         "ours: held-out success, pooled (successes/episodes) [95% CI]",
         "ours: per-seed mean ± std",
+        "blind: per-seed mean",
         "seeds",
         "grasps",
         "eval episodes",
@@ -190,9 +187,18 @@ def render_table1(rows: Sequence[TableRow], source: str = "") -> str:
         "- *pooled*: all evaluation episodes of all seeds together, with the 95% Wilson score interval.",
         "- *per-seed mean ± std*: the mean of the seeds' success rates and their sample standard deviation "
         "(ddof=1), in percentage points.",
+        "- *blind*: the final policies given, in every phase, the images of another held-out scene (another "
+        "episode of the same evaluation); what is left is what they do without seeing their own scene.",
         "- *grasps*: the training grasps behind each run's final evaluation (the `eval/eval_XXXXXXXX.json` with "
         "the most grasps); *full budget of the preset*: the grasps of a full run (the paper's, where it says).",
     ]
+    if any(row.runs and row.preset.startswith(CPU_PREFIX) and paper_row(row.preset) for row in rows):
+        lines.append(
+            f"- **`cpu-` rows: the paper's settings at CPU scale** (tiny networks, TinyRenderer at 128, "
+            f"{TABLE1_CPU_GRASPS} grasps, the same structure and learning recipe as the paper-size presets). They "
+            "say whether each setting learns under this code and whether the paper's orderings appear at a small "
+            "budget; they do not reproduce the paper's numbers, which come after 25-70K grasps."
+        )
     short = [
         row.preset
         for row in rows
@@ -212,27 +218,115 @@ def render_table1(rows: Sequence[TableRow], source: str = "") -> str:
             "- Presets marked *(not in the paper)*, such as `smoke` (tiny model, a few grasps), only "
             "exercise the pipeline."
         )
+    lines += _ordering_lines(rows)
     lines += [
         "",
         "## Runs",
         "",
-        "| preset | seed | final evaluation | grasps | successes/episodes | rate |",
-        "| --- | --- | --- | --- | --- | --- |",
+        "| preset | seed | final evaluation | grasps | training minutes | successes/episodes | rate | blind |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for row in rows:
         for run in row.runs:
-            result = run.final_eval
+            result, minutes = run.final_eval, run.train_minutes
+            blind = run.blind_eval
+            blind_text = (f"{blind['successes']}/{blind['episodes']} ({format_percent(blind['success_rate'])})"
+                          if blind else "not evaluated")  # fmt: skip
+            renamed = f" (trained as {run.trained_as})" if run.trained_as else ""
             lines.append(
-                f"| {row.preset} | {run.seed} | `{result['path']}` | {result['grasps']} | "
-                f"{result['successes']}/{result['episodes']} | {format_percent(result['success_rate'])} |"
+                f"| {row.preset}{renamed} | {run.seed} | `{result['path']}` | {result['grasps']} | "
+                f"{f'{minutes:.1f}' if minutes is not None else '?'} | {result['successes']}/{result['episodes']} | "
+                f"{format_percent(result['success_rate'])} | {blind_text} |"
             )
-        for run in row.runs_without_eval:
-            lines.append(f"| {row.preset} | {run.seed} | `{run.run_dir}`: no evaluation yet | | | |")
     return "\n".join(lines) + "\n"
 
 
+def orderings(rows: Sequence[TableRow]) -> list[dict]:
+    """Each ordering of :data:`PAPER_ORDERINGS` whose two rows have runs: the difference of the rows' seed means,
+    its bootstrap 95% interval, and the verdict (:mod:`apr.reproduce.orderings`)."""
+    by_row = {paper_row(row.preset): row for row in rows if row.runs and paper_row(row.preset)}
+    found = []
+    for ordering in PAPER_ORDERINGS:
+        if ordering.first in by_row and ordering.second in by_row:
+            first, second = by_row[ordering.first], by_row[ordering.second]
+            difference = bootstrap_difference(first.seed_rates, second.seed_rates)
+            found.append({
+                "claim": ordering.claim, "kind": ordering.kind, "paper": ordering.paper,
+                "first": first.preset, "second": second.preset,
+                "seeds": [len(first.runs), len(second.runs)], "difference": difference.difference,
+                "ci_low": difference.low, "ci_high": difference.high, "verdict": verdict(ordering, difference),
+            })  # fmt: skip
+    return found
+
+
+def _ordering_lines(rows: Sequence[TableRow]) -> list[str]:
+    found = orderings(rows)
+    if not found:
+        return []
+    lines = [
+        "",
+        "## The paper's orderings",
+        "",
+        "| claim | the paper | seeds | difference of the means | bootstrap 95% CI | verdict |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    for item in found:
+        lines.append(
+            f"| {item['claim']} | {item['paper']} | {item['seeds'][0]} and {item['seeds'][1]} | "
+            f"{100 * item['difference']:+.1f} pts | [{100 * item['ci_low']:+.1f}, {100 * item['ci_high']:+.1f}] | "
+            f"**{item['verdict']}** |"
+        )
+    lines += [
+        "",
+        f"- The interval: {BOOTSTRAP_TEXT}.",
+        "- *beats*: holds when the interval lies above 0, reversed when below, not resolved when it holds 0. *does "
+        f"about as well as*: holds when the interval lies within ±{NEGLIGIBLE_POINTS:g} points, reversed when it "
+        "excludes 0, otherwise not resolved.",
+    ]
+    return lines
+
+
+BOOTSTRAP_TEXT = ("each row's seeds resampled with replacement 10,000 times, the 2.5th and 97.5th percentiles of the "
+                  "difference of the resampled means; with 3 to 5 seeds a row it is coarse, and a row whose seeds "
+                  "all agree adds no width")  # fmt: skip
+
+
+def table1_json(rows: Sequence[TableRow], source: str = "") -> dict:
+    """The table's numbers, per seed: what ``table1.json`` holds."""
+    return {
+        "source": source,
+        "rows": [
+            {
+                "preset": row.preset, "paper_row": paper_row(row.preset), "paper": row.paper,
+                "seed_mean": row.seed_mean, "seed_std": row.seed_std, "blind_mean": row.blind_mean,
+                "seeds": [
+                    {
+                        "seed": run.seed, "run": run.run_dir.name, "trained_as": run.trained_as or None,
+                        "successes": int(run.final_eval["successes"]), "episodes": int(run.final_eval["episodes"]),
+                        "success_rate": float(run.final_eval["success_rate"]), "grasps": int(run.final_eval["grasps"]),
+                        "train_minutes": run.train_minutes,
+                        "blind": None if run.blind_eval is None else {
+                            name: run.blind_eval[name] for name in ("blind", "successes", "episodes", "success_rate")
+                        },
+                    }
+                    for run in row.runs
+                ],
+            }
+            for row in rows
+        ],
+        "orderings": orderings(rows),
+    }  # fmt: skip
+
+
 def write_table1(run_dirs: Iterable[Path], out: Path, presets: Sequence[str] | None = None, source: str = "") -> Path:
-    """Build Table 1 from ``run_dirs`` and write it as markdown to ``out``."""
+    """Build Table 1 from ``run_dirs`` and write it as markdown to ``out``, its numbers beside it
+    (``table1.json``) and its learning curves (``figure4.png``, with the blind means at the end); return ``out``."""
+    run_dirs = list(run_dirs)
+    rows = build_table1(run_dirs, presets)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(render_table1(build_table1(run_dirs, presets), source))
+    write_text_atomically(out, render_table1(rows, source))
+    write_text_atomically(out.with_name("table1.json"), json.dumps(table1_json(rows, source), indent=2) + "\n")
+    blind = {row.preset: (float(np.mean(row.grasps)), row.blind_mean) for row in rows if row.blind_mean is not None}
+    if run_dirs:
+        plot_learning_curves(run_dirs, blind=blind).savefig(out.with_name("figure4.png"), dpi=120)
     return out

@@ -305,65 +305,111 @@ CPU_RENDERING: dict[str, Any] = dict(renderer="tiny", render_size=128)
 """How the CPU presets render (ours; the paper presets keep EGL at 256x256): TinyRenderer at 128x128 costs an env
 step 70 ms of CPU against 150 ms for EGL through llvmpipe at 256 and renders bitwise reproducibly; the price is a
 blurrier inner ring of the log-polar views (docs/decisions.md, "Views and rendering"; docs/benchmarks.md)."""
-CPU_LEARNER: dict[str, Any] = dict(gqn_update_every=2, channels_last=True)
-"""How the CPU presets' learner saves time (ours): the ELBO on every second update (about half of a tiny update's
-cost) and channels-last convolutions (about 9% less on this CPU); docs/decisions.md, "The model"."""
-
-CPU_HEADS: dict[str, Any] = dict(heads_see_proprioception=True, init_temperature=0.01, batch_size=32, gqn_batch_size=8)
-"""The CPU presets' heads and SAC (ours): the heads see g, initial temperature 0.01, batch 32 (docs/decisions.md,
-"The model")."""
+RECIPE: dict[str, Any] = dict(heads_see_proprioception=True, init_temperature=0.01)
+"""The learning recipe of every preset of Table 1, at both scales (ours; docs/decisions.md, "One recipe for Table
+1"): the heads see the gripper pose g beside r, and the entropy temperature starts at 0.01. With a learned
+fixation the heads also see the point chosen, and the bandit learns from :data:`PROXIMITY_BANDIT`
+(:func:`with_recipe`). Never the simulator's target: the rows differ in what they see."""
+PROXIMITY_BANDIT: dict[str, Any] = dict(fixation_reward="proximity", fixation_relabels=8)
+"""The fixation bandit of the recipe (ours): the proximity reward, 8 relabelled points per sample
+(docs/decisions.md, "The fixation bandit's reward")."""
+CPU_MODEL: dict[str, Any] = dict(batch_size=32, gqn_batch_size=8, gqn_update_every=2, channels_last=True)
+"""How the CPU scale's learner saves time (ours): batch 32 (8 of them for the ELBO), the ELBO on every second update
+(about half of a tiny update's cost) and channels-last convolutions (about 9% less on this CPU); docs/decisions.md,
+"The model"."""
 CPU_RUN: dict[str, Any] = dict(
     total_grasps=5_000, max_train_minutes=60.0, workers=2, random_grasps=50, updates_per_step=1.0,
     replay_capacity=30_000, eval_every_grasps=200, eval_episodes=30, final_eval_episodes=100,
     checkpoint_every_grasps=200, log_every_grasps=25, image_every_grasps=500,
 )  # fmt: skip
 """The CPU presets' run: an hour of a 2-core CPU, a 30-episode evaluation every 200 grasps, 100 at the end."""
-PROXIMITY_BANDIT: dict[str, Any] = dict(fixation_reward="proximity", fixation_relabels=8)
-"""The fixation bandit of ``cpu-learned-4d`` (ours): the proximity reward, 8 relabelled points per sample
-(docs/decisions.md, "The fixation bandit's reward")."""
+TABLE1_CPU_GRASPS = 600
+"""The grasp budget of every row of Table 1 at CPU scale (ours): where the recipe's learned-fixation run levels off
+on the 2-core CPU (its held-out success at 200, 400 and 600 grasps: 63, 67 and 65% for seed 0; docs/benchmarks.md,
+"Learned fixation"), about 35 minutes of that machine per run. No time limit, so that every row gets the same
+grasps whatever else shares the machine."""
+TABLE1_CPU_RUN: dict[str, Any] = {**CPU_RUN, "total_grasps": TABLE1_CPU_GRASPS, "max_train_minutes": 0.0}
+"""The run of a CPU-scale Table 1 preset: :data:`CPU_RUN` with :data:`TABLE1_CPU_GRASPS` and no time limit."""
+CPU_PREFIX = "cpu-"
+"""A paper preset's CPU scale is named ``cpu-PRESET`` (:func:`cpu_scale`)."""
+RENAMED_PRESETS = {"cpu-learned-4d": "cpu-active-learned-4d"}
+"""Presets' earlier names, as old runs' config.json files give them: the settings are the same."""
 
-PRESETS: dict[str, tuple[str, TrainConfig]] = dict(
-    [
-        _preset("active-target", "head camera fixating the env's target, 6-DoF, log-polar, GQN (Table 1: 84%)"),
-        _preset("passive-target", "three static cameras, 6-DoF, no log-polar, GQN (Table 1: 76%)",
-                env=dict(env_id="apr/PassiveGrasp-v0", foveation="resize")),
-        _preset("active-target-no-logpolar", "active-target with a plain resize instead of the warp (Table 1: 79%)",
-                env=dict(foveation="resize")),
-        _preset("active-target-no-representation",
-                "active-target without the generator; RL trains the encoder (paper: negligible improvement)",
-                model=ModelConfig(representation=False)),
-        _preset("active-learned-6d", "the full APR: learned fixation, 6-DoF (Table 1: 85% after 70K grasps)",
-                env=dict(target="learned")),
-        _preset("active-learned-4d", "learned fixation, 4-DoF (Table 1: 85% after 25K grasps)",
-                env=dict(target="learned", dof=4), total_grasps=25_000),
+
+def with_recipe(config: TrainConfig) -> TrainConfig:
+    """``config`` with the learning settings of :data:`RECIPE` (and, with a learned fixation, the point chosen
+    in the heads' input and :data:`PROXIMITY_BANDIT`)."""
+    learned = config.env.learned_fixation
+    changes = {**RECIPE, "heads_see_fixation": learned, **(PROXIMITY_BANDIT if learned else {})}
+    return dataclasses.replace(config, model=config.model.replace(**changes))
+
+
+SCALE_FREE_MODEL_FIELDS = ("representation", "heads_see_proprioception", "heads_see_fixation", "init_temperature",
+                           "fixation_reward", "fixation_relabels", "fixation_proximity_radius")  # fmt: skip
+"""Model fields a scale keeps: the structure (the ablation switch) and the recipe. The rest are sizes and speed."""
+
+
+def cpu_scale(name: str, config: TrainConfig) -> TrainConfig:
+    """The CPU scale of the paper preset ``name`` (``config``): the same env, structure and recipe, with tiny
+    networks (:meth:`ModelConfig.tiny`), :data:`CPU_MODEL`, TinyRenderer at 128 and :data:`TABLE1_CPU_RUN`."""
+    kept = {field_name: getattr(config.model, field_name) for field_name in SCALE_FREE_MODEL_FIELDS}
+    env = dataclasses.replace(config.env, **CPU_RENDERING)
+    return dataclasses.replace(config, preset=CPU_PREFIX + name, env=env,
+                               model=ModelConfig.tiny(**kept, **CPU_MODEL), **TABLE1_CPU_RUN)  # fmt: skip
+
+
+PAPER_PRESET_LIST: list[tuple[str, tuple[str, TrainConfig]]] = [
+    _preset("active-target", "head camera fixating the env's target, 6-DoF, log-polar, GQN (Table 1: 84%)"),
+    _preset("passive-target", "three static cameras, 6-DoF, no log-polar, GQN (Table 1: 76%)",
+            env=dict(env_id="apr/PassiveGrasp-v0", foveation="resize")),
+    _preset("active-target-no-logpolar", "active-target with a plain resize instead of the warp (Table 1: 79%)",
+            env=dict(foveation="resize")),
+    _preset("active-target-no-representation",
+            "active-target without the generator; RL trains the encoder (paper: negligible improvement)",
+            model=ModelConfig(representation=False)),
+    _preset("active-learned-6d", "the full APR: learned fixation, 6-DoF (Table 1: 85% after 70K grasps)",
+            env=dict(target="learned")),
+    _preset("active-learned-4d", "learned fixation, 4-DoF (Table 1: 85% after 25K grasps)",
+            env=dict(target="learned", dof=4), total_grasps=25_000),
+]  # fmt: skip
+"""The presets of the paper's Table 1 at paper size, each with :data:`RECIPE` (:func:`with_recipe`)."""
+PAPER_SCALE = {name: (text, with_recipe(config)) for name, (text, config) in PAPER_PRESET_LIST}
+CPU_SCALE = {
+    CPU_PREFIX + name: (f"{name} at CPU scale: tiny networks, TinyRenderer at 128, {TABLE1_CPU_GRASPS} grasps; the "
+                        "same structure and recipe", cpu_scale(name, config))
+    for name, (_, config) in PAPER_SCALE.items()
+}  # fmt: skip
+"""Table 1 at CPU scale (``apr reproduce table1 --scale cpu``)."""
+_LEARNED_4D_CPU = CPU_SCALE["cpu-active-learned-4d"][1]
+
+PRESETS: dict[str, tuple[str, TrainConfig]] = {
+    **PAPER_SCALE,
+    **CPU_SCALE,
+    **dict([
         _preset("cpu-4d",
                 "PRIVILEGED, breaks the observation rule: its heads are handed the target's true centre (f, the "
                 "simulator's answer) beside g; env target, 4-DoF, log-polar, tiny GQN, TinyRenderer at 128. It "
                 "reaches a coordinate, hardly looks: its blind numbers are in the README",
                 env=dict(dof=4, reveal_target=True, **CPU_RENDERING),
-                model=ModelConfig.tiny(heads_see_fixation=True, **CPU_HEADS, **CPU_LEARNER), **CPU_RUN),
-        _preset("cpu-learned-4d",
-                "learned fixation on a 2-core CPU: 4-DoF, log-polar, tiny GQN, heads see g and the point chosen, the "
-                "fixation bandit on the proximity reward with 8 relabelled points per sample, TinyRenderer at 128",
-                env=dict(target="learned", dof=4, **CPU_RENDERING),
-                model=ModelConfig.tiny(heads_see_fixation=True, **PROXIMITY_BANDIT, **CPU_HEADS, **CPU_LEARNER),
-                **CPU_RUN),
-        _preset("cpu-learned-4d-grasp-reward",
-                "cpu-learned-4d with the paper's fixation reward: the bandit regresses the episode's grasp reward, "
-                "no relabelling",
-                env=dict(target="learned", dof=4, **CPU_RENDERING),
-                model=ModelConfig.tiny(heads_see_fixation=True, **CPU_HEADS, **CPU_LEARNER), **CPU_RUN),
+                model=ModelConfig.tiny(heads_see_fixation=True, **RECIPE, **CPU_MODEL), **CPU_RUN),
+        ("cpu-learned-4d-grasp-reward",
+         ("cpu-active-learned-4d with the paper's fixation reward: the bandit regresses the episode's grasp reward, "
+          "no relabelling",
+          dataclasses.replace(_LEARNED_4D_CPU, preset="cpu-learned-4d-grasp-reward",
+                              model=_LEARNED_4D_CPU.model.replace(fixation_reward="grasp", fixation_relabels=0)))),
         _preset("smoke", "tiny sizes, a few grasps: the whole pipeline in about a minute on a CPU",
-                env=dict(target="learned", dof=4, **CPU_RENDERING), model=ModelConfig.tiny(**CPU_LEARNER),
+                env=dict(target="learned", dof=4, **CPU_RENDERING),
+                model=ModelConfig.tiny(gqn_update_every=2, channels_last=True),
                 total_grasps=8, workers=2, random_grasps=2, updates_per_step=0.25, replay_capacity=2_000,
                 eval_every_grasps=4, eval_episodes=2, checkpoint_every_grasps=4, log_every_grasps=2,
                 image_every_grasps=4),
-    ]
-)  # fmt: skip
+    ]),
+}  # fmt: skip
 
 
 def preset(name: str) -> TrainConfig:
-    """A fresh copy of the preset ``name``."""
+    """A fresh copy of the preset ``name`` (or of the one it was renamed to)."""
+    name = RENAMED_PRESETS.get(name, name)
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}; the presets are: {', '.join(PRESETS)}")
     return copy.deepcopy(PRESETS[name][1])
