@@ -1,5 +1,9 @@
 """``apr reproduce table1``: train the presets of Table 1 over several seeds, then write the table.
 
+``--scale paper`` runs the presets at paper size (GPU jobs); ``--scale cpu`` runs each one's ``cpu-`` preset, the
+same structure and learning recipe at a 2-core CPU's budget (``apr.train.config.cpu_scale``). Once a run is
+trained its final policy is evaluated blind (another scene's images in every phase, :func:`evaluate_blind`).
+
 Runs are named ``PRESET__sSEED`` under the output folder, so the command is resumable: a finished run (one
 with an evaluation at or beyond the grasp budget) is skipped, an unfinished one continues from its latest
 checkpoint (``Trainer.resume``), and a folder without a checkpoint starts over. ``--parallel K`` trains K runs
@@ -40,7 +44,8 @@ RunStatus = Literal["done", "resume", "new", "restart"]
 
 @dataclass
 class Table1Args:
-    """Train the presets of the paper's Table 1 over several seeds (resumable), then write table1.md."""
+    """Train the presets of the paper's Table 1 over several seeds (resumable), evaluate each final policy blind, then
+    write table1.md, table1.json and figure4.png."""
 
     scale: Literal["paper", "cpu"] = "paper"
     """paper: the presets at paper size (GPU runs of 70K grasps). cpu: each one's ``cpu-`` preset, the same
@@ -85,8 +90,7 @@ class Table1Args:
     """Evaluate each finished run's final policy given another scene's images in every phase (``apr eval --blind
     both``), on as many held-out episodes as its final evaluation, into ``RUN/eval/blind_both_GRASPS.json``."""
     table_only: bool = False
-    """Train and evaluate nothing: write the table (and, at CPU scale, table1.json and figure4.png) from the runs
-    already under OUT."""
+    """Train and evaluate nothing: write table1.md, table1.json and figure4.png from the runs already under OUT."""
 
     def preset_names(self) -> list[str]:
         """The presets the runs start from: the paper names, or their CPU scale."""

@@ -213,7 +213,7 @@ def render_table1(rows: Sequence[TableRow], source: str = "") -> str:
         lines.append(
             "- *(tiny model)*: the runs used the smoke preset's tiny network sizes (`--tiny-model`), not the paper's."
         )
-    if any(row.runs and row.preset not in PAPER_TABLE1 for row in rows):
+    if any(row.runs and paper_row(row.preset) is None for row in rows):
         lines.append(
             "- Presets marked *(not in the paper)*, such as `smoke` (tiny model, a few grasps), only "
             "exercise the pipeline."
