@@ -192,10 +192,10 @@ def fabricate_blind(run_dir: Path, grasps: int, successes: int, episodes: int) -
 
 
 CPU_SEEDS = {  # paper row -> per seed (successes of 100 at 600 grasps, blind successes or None)
-    "active-target": [(70, 20), (60, 30), (80, None)],
+    "active-target": [(70, 20), (72, 30), (68, None)],
     "passive-target": [(50, 10), (50, 20), (50, 30)],
-    "active-target-no-logpolar": [(95, 5), (99, 5)],
-    "active-target-no-representation": [(68, 1), (72, 2), (70, 3)],
+    "active-target-no-logpolar": [(95, 5), (99, 5), (97, 5)],
+    "active-target-no-representation": [(69, 1), (71, 2), (70, 3)],
     "active-learned-6d": [(10, 9)],
     "active-learned-4d": [(60, 50), (70, 40), (80, 30)],
 }
@@ -221,19 +221,15 @@ def test_cpu_table_gives_the_known_means_blind_successes_and_orderings(tmp_path:
         assert [seed["success_rate"] for seed in by_row[row]["seeds"]] == pytest.approx(rates)
         assert all(seed["grasps"] == 600 and seed["episodes"] == 100 for seed in by_row[row]["seeds"])
     found = {(item["first"], item["second"]): item for item in table["orderings"]}
-    # active 70% (60, 70, 80) against passive 50% (all 50): the bootstrap draws three of active's seeds, so the
-    # interval spans the 2.5th and 97.5th percentiles of a mean of three draws from {60, 70, 80}, minus 50
-    active = found["cpu-active-target", "cpu-passive-target"]
-    assert active["difference"] == pytest.approx(0.2)
-    draws = np.array(np.meshgrid([0.6, 0.7, 0.8], [0.6, 0.7, 0.8], [0.6, 0.7, 0.8])).reshape(3, -1).mean(axis=0)
-    low, high = np.percentile(draws - 0.5, [2.5, 97.5], method="inverted_cdf")  # the 27 equally likely resamples
-    assert (active["ci_low"], active["ci_high"]) == pytest.approx((low, high)) == (0.1, 0.3)
-    assert active["verdict"] == "holds" and active["seeds"] == [3, 3]
+    active = found["cpu-active-target", "cpu-passive-target"]  # 70% (70, 72, 68) against 50% (all 50)
+    assert active["difference"] == pytest.approx(0.2) and active["seeds"] == [3, 3]
+    # the seeds' spread and 100 episodes each (a binomial's standard deviation of ~2.6 points for a row's mean)
+    assert 0.1 < active["ci_low"] < 0.2 < active["ci_high"] < 0.3 and active["verdict"] == "holds"
     assert found["cpu-active-target", "cpu-active-target-no-logpolar"]["verdict"] == "reversed"  # 70 against 97
-    negligible = found["cpu-active-target", "cpu-active-target-no-representation"]  # 70 against 70 +- 2
+    negligible = found["cpu-active-target", "cpu-active-target-no-representation"]  # 70 against 70
     assert negligible["difference"] == pytest.approx(0.0, abs=1e-9) and negligible["verdict"] == "holds"
-    assert found["cpu-active-learned-6d", "cpu-active-target"]["verdict"] == "reversed"  # 10 against 70
-    assert found["cpu-active-learned-4d", "cpu-active-learned-6d"]["ci_low"] > 0
+    one_seed = found["cpu-active-learned-6d", "cpu-active-target"]  # 10 against 70, but one seed
+    assert one_seed["difference"] == pytest.approx(-0.6) and one_seed["verdict"] == "not resolved"
     markdown = out.read_text()
     rows = table_cells(markdown)
     assert rows["cpu-active-target"][1] == "84%"  # the paper's number beside its CPU scale
@@ -244,21 +240,24 @@ def test_cpu_table_gives_the_known_means_blind_successes_and_orderings(tmp_path:
 
 
 def test_bootstrap_interval_and_verdicts_on_known_seeds():
-    same = bootstrap_difference([0.6, 0.6, 0.6], [0.4, 0.4])
-    assert (same.difference, same.low, same.high) == pytest.approx((0.2, 0.2, 0.2))  # seeds agree: no width
-    assert bootstrap_difference([0.2, 0.9], [0.5]) == bootstrap_difference([0.2, 0.9], [0.5])  # seeded
-    spread = bootstrap_difference([0.2, 0.9], [0.5])  # resamples: 0.2 (1/4), 0.55 (1/2), 0.9 (1/4), minus 0.5
-    assert (spread.low, spread.high) == pytest.approx((-0.3, 0.4))
+    certain = bootstrap_difference([(100, 100)] * 3, [(0, 100)] * 2)  # rates of 1 and 0 resample to themselves
+    assert (certain.difference, certain.low, certain.high) == pytest.approx((1.0, 1.0, 1.0))
+    spread = bootstrap_difference([(0, 100), (100, 100)], [(0, 100)])  # means 0 (1/4), 0.5 (1/2), 1 (1/4)
+    assert (spread.difference, spread.low, spread.high) == pytest.approx((0.5, 0.0, 1.0))
+    assert bootstrap_difference([(1, 100)], [(2, 50)]) == bootstrap_difference([(1, 100)], [(2, 50)])  # seeded
+    agreeing = bootstrap_difference([(1, 100)] * 3, [(0, 100)] * 3)  # seeds that agree: the episodes still vary
+    assert agreeing.difference == pytest.approx(0.01) and agreeing.low <= 0 < agreeing.high
     better = Ordering("a", "b", "better", "")
-    assert verdict(better, spread) == "not resolved"
-    assert verdict(better, same) == "holds"
+    assert verdict(better, agreeing) == "not resolved"
+    assert verdict(better, certain) == "holds"
+    assert verdict(better, certain, seeds=(3, 2)) == "not resolved"  # fewer than MIN_SEEDS in a row
     assert verdict(better, Difference(-0.2, -0.3, -0.1)) == "reversed"
     negligible = Ordering("a", "b", "negligible", "")
     assert verdict(negligible, Difference(0.02, -0.05, 0.08)) == "holds"
     assert verdict(negligible, Difference(0.2, 0.15, 0.25)) == "reversed"
     assert verdict(negligible, spread) == "not resolved"
     with pytest.raises(ValueError, match="at least one seed"):
-        bootstrap_difference([], [0.5])
+        bootstrap_difference([], [(1, 2)])
 
 
 COMMITTED_TABLE = Path(__file__).resolve().parents[1] / "results" / "table1-cpu"

@@ -1,8 +1,11 @@
 """The orderings the paper claims between rows of Table 1, and whether a campaign's seeds resolve them.
 
 For each claim, the difference of the two rows' mean held-out success (each row's mean over its seeds'
-final evaluations) with a bootstrap 95% interval across seeds: each resample draws every row's seeds with
-replacement, the percentile interval of the resampled differences. The verdict reads the interval:
+final evaluations) with a two-level bootstrap 95% interval: each resample draws every row's seeds with
+replacement, then each drawn seed's evaluation again (its successes binomial with its episodes and rate), and the
+interval is the 2.5th to 97.5th percentile of the resampled differences. The second level keeps seeds that agree
+(every seed at 0 of 100, or 1 of 100) from making a difference look certain. The verdict reads the interval, and
+needs :data:`MIN_SEEDS` seeds in each row:
 
 - a claim that one row beats another holds when the interval lies above 0, is reversed when it lies below 0,
   and is not resolved when it holds 0;
@@ -21,6 +24,8 @@ import numpy as np
 BOOTSTRAP_RESAMPLES = 10_000
 BOOTSTRAP_SEED = 0
 """The bootstrap's generator seed: the same seeds' results give the same interval."""
+MIN_SEEDS = 3
+"""Seeds each row needs before a verdict other than "not resolved" (the campaign's least per row)."""
 NEGLIGIBLE_POINTS = 10.0
 """Percentage points within which a difference counts as negligible (ours: the paper gives no margin; its
 "negligible" rows and its 85% against 84% are within 1 point, our seeds' spread is wider)."""
@@ -68,26 +73,39 @@ class Difference:
     high: float
 
 
-def bootstrap_difference(first: Sequence[float], second: Sequence[float], resamples: int = BOOTSTRAP_RESAMPLES,
-                         seed: int = BOOTSTRAP_SEED) -> Difference:  # fmt: skip
-    """mean(first) - mean(second) with the 95% percentile interval of ``resamples`` bootstrap resamples, each
-    row's seeds drawn with replacement.
+SeedResult = tuple[int, int]
+"""One seed's final evaluation: (successes, episodes)."""
+
+
+def bootstrap_difference(first: Sequence[SeedResult], second: Sequence[SeedResult],
+                         resamples: int = BOOTSTRAP_RESAMPLES, seed: int = BOOTSTRAP_SEED) -> Difference:  # fmt: skip
+    """The mean success of ``first``'s seeds minus ``second``'s, with the 95% interval of ``resamples`` two-level
+    bootstrap resamples (the module's docstring).
 
     Args:
-        first, second: per-seed success rates of the two rows (at least one each).
+        first, second: (successes, episodes) of each seed of the two rows (at least one each).
     """
     if not first or not second:
         raise ValueError("each row needs at least one seed")
     rng = np.random.default_rng(seed)
-    a, b = np.asarray(first, dtype=float), np.asarray(second, dtype=float)
-    draws_a = a[rng.integers(len(a), size=(resamples, len(a)))].mean(axis=1)
-    draws_b = b[rng.integers(len(b), size=(resamples, len(b)))].mean(axis=1)
+
+    def resampled_means(seeds: Sequence[SeedResult]) -> tuple[float, np.ndarray]:
+        successes, episodes = np.asarray(seeds, dtype=float).T
+        drawn = rng.integers(len(seeds), size=(resamples, len(seeds)))
+        rates = rng.binomial(episodes[drawn].astype(int), (successes / episodes)[drawn]) / episodes[drawn]
+        return float(np.mean(successes / episodes)), rates.mean(axis=1)
+
+    mean_a, draws_a = resampled_means(first)
+    mean_b, draws_b = resampled_means(second)
     low, high = np.percentile(draws_a - draws_b, [2.5, 97.5])
-    return Difference(float(a.mean() - b.mean()), float(low), float(high))
+    return Difference(mean_a - mean_b, float(low), float(high))
 
 
-def verdict(ordering: Ordering, difference: Difference) -> Verdict:
-    """Whether the interval of ``difference`` resolves ``ordering`` (the module's rules)."""
+def verdict(ordering: Ordering, difference: Difference, seeds: tuple[int, int] = (MIN_SEEDS, MIN_SEEDS)) -> Verdict:
+    """Whether the interval of ``difference`` resolves ``ordering`` (the module's rules), the rows having
+    ``seeds`` seeds."""
+    if min(seeds) < MIN_SEEDS:
+        return "not resolved"
     low, high = 100 * difference.low, 100 * difference.high
     if ordering.kind == "better":
         return "holds" if low > 0 else "reversed" if high < 0 else "not resolved"

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from apr.reproduce.orderings import NEGLIGIBLE_POINTS, PAPER_ORDERINGS, bootstrap_difference, verdict
+from apr.reproduce.orderings import MIN_SEEDS, NEGLIGIBLE_POINTS, PAPER_ORDERINGS, bootstrap_difference, verdict
 from apr.reproduce.paper import PAPER_PRESETS, PAPER_TABLE1, paper_row
 from apr.reproduce.plot import plot_learning_curves
 from apr.reproduce.runs import RunSummary, find_run_dirs, read_run
@@ -55,6 +55,11 @@ class TableRow:
     @property
     def seed_rates(self) -> list[float]:
         return [float(run.final_eval["success_rate"]) for run in self.runs]
+
+    @property
+    def seed_results(self) -> list[tuple[int, int]]:
+        """(successes, episodes) of each seed's final evaluation."""
+        return [(int(run.final_eval["successes"]), int(run.final_eval["episodes"])) for run in self.runs]
 
     @property
     def seed_mean(self) -> float | None:
@@ -249,12 +254,13 @@ def orderings(rows: Sequence[TableRow]) -> list[dict]:
     for ordering in PAPER_ORDERINGS:
         if ordering.first in by_row and ordering.second in by_row:
             first, second = by_row[ordering.first], by_row[ordering.second]
-            difference = bootstrap_difference(first.seed_rates, second.seed_rates)
+            difference = bootstrap_difference(first.seed_results, second.seed_results)
+            seeds = (len(first.runs), len(second.runs))
             found.append({
                 "claim": ordering.claim, "kind": ordering.kind, "paper": ordering.paper,
                 "first": first.preset, "second": second.preset,
-                "seeds": [len(first.runs), len(second.runs)], "difference": difference.difference,
-                "ci_low": difference.low, "ci_high": difference.high, "verdict": verdict(ordering, difference),
+                "seeds": list(seeds), "difference": difference.difference,
+                "ci_low": difference.low, "ci_high": difference.high, "verdict": verdict(ordering, difference, seeds),
             })  # fmt: skip
     return found
 
@@ -286,9 +292,11 @@ def _ordering_lines(rows: Sequence[TableRow]) -> list[str]:
     return lines
 
 
-BOOTSTRAP_TEXT = ("each row's seeds resampled with replacement 10,000 times, the 2.5th and 97.5th percentiles of the "
-                  "difference of the resampled means; with 3 to 5 seeds a row it is coarse, and a row whose seeds "
-                  "all agree adds no width")  # fmt: skip
+BOOTSTRAP_TEXT = (
+    "10,000 resamples, each drawing every row's seeds with replacement and then each drawn seed's episodes again "
+    "(binomial at its rate); the 2.5th and 97.5th percentiles of the difference of the resampled means. A verdict "
+    f"needs {MIN_SEEDS} seeds in each row; with 3 to 5 it is coarse"
+)
 
 
 def table1_json(rows: Sequence[TableRow], source: str = "") -> dict:
