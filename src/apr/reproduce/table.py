@@ -4,7 +4,7 @@ Every number comes from the runs' final evaluations (``eval/eval_XXXXXXXX.json``
 grasps): the pooled success rate and its 95% Wilson interval over the episodes of all seeds, and the mean and
 standard deviation of the per-seed rates (the spread Figure 4 shades); the blind success of each final policy
 (``eval/blind_MODE_XXXXXXXX.json``: another scene's images); and, for each ordering the paper claims, the
-difference of the row means with its bootstrap interval across seeds (:mod:`apr.reproduce.orderings`).
+difference of the row means with its two-level bootstrap interval (:mod:`apr.reproduce.orderings`).
 :func:`write_table1` writes ``table1.md``, ``table1.json`` (the same numbers, per seed) and ``figure4.png``.
 """
 
@@ -280,7 +280,7 @@ def _ordering_lines(rows: Sequence[TableRow]) -> list[str]:
         lines.append(
             f"| {item['claim']} | {item['paper']} | {item['seeds'][0]} and {item['seeds'][1]} | "
             f"{100 * item['difference']:+.1f} pts | [{100 * item['ci_low']:+.1f}, {100 * item['ci_high']:+.1f}] | "
-            f"**{item['verdict']}** |"
+            f"**{item['verdict']}**{f' (fewer than {MIN_SEEDS} seeds)' if min(item['seeds']) < MIN_SEEDS else ''} |"
         )
     lines += [
         "",
