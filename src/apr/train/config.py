@@ -326,8 +326,8 @@ CPU_RUN: dict[str, Any] = dict(
 TABLE1_CPU_GRASPS = 600
 """The grasp budget of every row of Table 1 at CPU scale (ours): where the recipe's learned-fixation run levels off
 on the 2-core CPU (its held-out success at 200, 400 and 600 grasps: 63, 67 and 65% for seed 0; docs/benchmarks.md,
-"Learned fixation"), about 35 minutes of that machine per run. No time limit, so that every row gets the same
-grasps whatever else shares the machine."""
+"Learned fixation"), about 27 minutes of that machine per run with its evaluations. No time limit, so that every row
+gets the same grasps whatever else shares the machine."""
 TABLE1_CPU_RUN: dict[str, Any] = {**CPU_RUN, "total_grasps": TABLE1_CPU_GRASPS, "max_train_minutes": 0.0}
 """The run of a CPU-scale Table 1 preset: :data:`CPU_RUN` with :data:`TABLE1_CPU_GRASPS` and no time limit."""
 CPU_PREFIX = "cpu-"
