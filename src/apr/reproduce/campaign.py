@@ -225,12 +225,6 @@ def blind_eval_paths(run_dir: Path) -> list[Path]:
     return sorted((run_dir / "eval").glob("blind_*.json"))
 
 
-def needs_blind(run_dir: Path) -> bool:
-    """True when the run's final evaluation has no blind evaluation beside it."""
-    result = final_eval(run_dir)
-    return result is not None and not blind_eval_path(run_dir, int(result["grasps"])).exists()
-
-
 def evaluate_blind(run_dir: Path, workers: WorkersFactory | None = None) -> Path | None:
     """Evaluate the run's final policy given another scene's images (:data:`BLIND_MODE`) on as many held-out
     episodes as its final evaluation (the same evaluation seeds), and write :func:`blind_eval_path`; skipped
@@ -239,7 +233,7 @@ def evaluate_blind(run_dir: Path, workers: WorkersFactory | None = None) -> Path
     from apr.train.evaluation import evaluate
 
     result = final_eval(run_dir)
-    if result is None or not needs_blind(run_dir):
+    if result is None or blind_eval_path(run_dir, int(result["grasps"])).exists():
         return None
     snapshot = load_run(run_dir)
     if snapshot.grasps != int(result["grasps"]):

@@ -118,15 +118,15 @@ def blind_eval(run_dir: Path, grasps: int) -> dict | None:
 def read_run(run_dir: Path) -> RunSummary:
     config = read_config(run_dir)
     final = final_eval(run_dir)
-    name = str(config.get("preset", "unknown"))
+    name, preset = str(config.get("preset", "unknown")), run_preset(config)
     return RunSummary(
         run_dir=run_dir,
-        preset=run_preset(config),
+        preset=preset,
         seed=int(config.get("seed", 0)),
         config=config,
         final_eval=final,
         blind_eval=blind_eval(run_dir, int(final["grasps"])) if final is not None else None,
-        trained_as=name if run_preset(config) != name else "",
+        trained_as=name if preset != name else "",
     )
 
 
