@@ -18,8 +18,8 @@ import pytest
 
 import apr  # noqa: F401  (registers the environments)
 
-ACTIVE = "apr/ActiveGrasp-v0"
-PASSIVE = "apr/PassiveGrasp-v0"
+ACTIVE = "apr/ActiveGrasp-v1"
+PASSIVE = "apr/PassiveGrasp-v1"
 FALLBACK_WARNING = "falls back to TinyRenderer"
 
 MakeEnv = Callable[..., gymnasium.Env]

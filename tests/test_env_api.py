@@ -1,4 +1,4 @@
-"""The Gymnasium API of ``apr/ActiveGrasp-v0`` and ``apr/PassiveGrasp-v0``: checker, determinism, memory,
+"""The Gymnasium API of ``apr/ActiveGrasp-v1`` and ``apr/PassiveGrasp-v1``: checker, determinism, memory,
 spaces, bad input, episode structure, vectorisation."""
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ import gymnasium
 import numpy as np
 import pytest
 from conftest import ACTIVE, FALLBACK_WARNING, PASSIVE, assert_obs_equal, obs_differ
+from gymnasium import spaces
 from gymnasium.utils.env_checker import check_env
 
 from apr.envs import ActiveGraspEnv, PassiveGraspEnv
@@ -295,17 +296,32 @@ def test_step_before_reset_raises(make_env) -> None:
 
 
 # ----------------------------------------------------------------------------------------- episode structure
-def test_env_target_episode_truncates_after_15_grasp_steps(box_env) -> None:
-    box_env.reset(seed=1)
+def test_env_target_episode_ends_after_15_grasp_steps_terminated_with_its_clock(box_env) -> None:
+    """v1: the 15-step limit is part of the task: it terminates, and the observation counts the steps left."""
+    assert box_env.observation_space["steps_left"] == spaces.Discrete(16)
+    obs, _ = box_env.reset(seed=1)
+    assert obs["steps_left"] == 15 and obs["steps_left"] in box_env.observation_space["steps_left"]
     stay_high = np.array([0.3, -0.3, 1.0, 0.5], np.float32)
     for step in range(1, 16):
-        _, reward, terminated, truncated, info = box_env.step(stay_high)
-        assert not terminated and not info["grasp_attempted"], step
-        assert truncated == (step == 15), step
-        assert info["grasp_steps"] == step
+        obs, reward, terminated, truncated, info = box_env.step(stay_high)
+        assert not info["grasp_attempted"] and not truncated, step
+        assert terminated == (step == 15), step
+        assert info["grasp_steps"] == step and obs["steps_left"] == 15 - step
         assert reward == pytest.approx(info["reach_reward"])
     with pytest.raises(RuntimeError, match="reset"):
         box_env.unwrapped.step(stay_high)
+    obs, _ = box_env.reset(seed=1)
+    assert obs["steps_left"] == 15
+
+
+def test_the_earlier_task_v0_truncates_after_15_grasp_steps_with_no_clock(make_env) -> None:
+    env = make_env("apr/ActiveGrasp-v0", dof=4, target="env", foveation="resize", render_size=64)
+    assert "steps_left" not in env.observation_space.spaces
+    env.reset(seed=1)
+    stay_high = np.array([0.3, -0.3, 1.0, 0.5], np.float32)
+    for step in range(1, 16):
+        obs, _, terminated, truncated, _ = env.step(stay_high)
+        assert not terminated and truncated == (step == 15) and "steps_left" not in obs, step
 
 
 def test_grasp_attempt_terminates_the_episode(box_env) -> None:
@@ -341,7 +357,7 @@ def test_learned_fixation_phase(dict_env) -> None:
     expected = WORKSPACE_LOW + 0.5 * (fixation.astype(np.float64) + 1.0) * (WORKSPACE_HIGH - WORKSPACE_LOW)
     assert reward == 0.0 and not terminated and not truncated
     assert obs["phase"] == 1 and info["phase"] == 1
-    assert info["grasp_steps"] == 0
+    assert info["grasp_steps"] == 0 and obs["steps_left"] == 15  # the glimpse is no grasp step
     np.testing.assert_allclose(info["fixation_point"], expected, atol=1e-6)
     np.testing.assert_allclose(dict_env.unwrapped.fixation_point, expected, atol=1e-9)
     np.testing.assert_array_equal(obs["gripper"], gripper_before)  # the arm did not move

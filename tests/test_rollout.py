@@ -53,7 +53,8 @@ class ScriptedPool:
         done = state[1] >= 1 + state[0] % 5
         action_value = float(np.asarray(action["grasp"] if isinstance(action, dict) else action)[0])
         info = {"grasp_steps": state[1], "reach_reward": action_value, "grasp_attempted": done,
-                "grasp_success": done and state[0] % 2 == 0, "fixation_point": np.zeros(3, np.float32)}  # fmt: skip
+                "grasp_success": done and state[0] % 2 == 0, "fixation_point": np.zeros(3, np.float32),
+                "tool_tip": np.full(3, 0.01 * state[1], np.float32), "tip_fixation_distance": 0.1}  # fmt: skip
         self.answers[index] = StepResult(self._observation(index), 0.0, done, False, info)
 
     def receive(self, index: int) -> object:

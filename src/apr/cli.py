@@ -13,6 +13,7 @@
     apr reproduce package RUN_DIR                 package a run's checkpoint for apr demo
     apr plot RUN_DIR... --out FILE                held-out success against grasps, one line per preset
     apr figures RUN_DIR --out DIR                 the paper's pictures (Figs 1, 3, 5, 6 and a GIF) of a run
+    apr probe RUN_DIR | untrained:PRESET          what a representation knows: readouts on r, in cm held out
     apr demo                                      a policy on held-out objects, with a short report
 
 Every subcommand takes ``--help``; ``apr --version`` prints the version.
@@ -40,12 +41,13 @@ from apr.commands import render as render_command
 from apr.commands import train as train_command
 from apr.commands.render import RenderArgs
 from apr.commands.train import EvalArgs, PresetsArgs
-from apr.reproduce import demo, figures, plot, policies
+from apr.reproduce import demo, figures, plot, policies, probe
 from apr.reproduce.campaign import Table1Args
 from apr.reproduce.demo import DemoArgs
 from apr.reproduce.figures import FiguresArgs
 from apr.reproduce.plot import PlotArgs
 from apr.reproduce.policies import PackageArgs
+from apr.reproduce.probe import ProbeArgs
 from apr.train.checkpoints import CheckpointError, RunLocked
 from apr.train.config import ConfigError
 
@@ -87,6 +89,7 @@ Command = (
     | Annotated[ReproduceArgs, tyro.conf.subcommand("reproduce")]
     | Annotated[PlotArgs, tyro.conf.subcommand("plot")]
     | Annotated[FiguresArgs, tyro.conf.subcommand("figures")]
+    | Annotated[ProbeArgs, tyro.conf.subcommand("probe")]
     | Annotated[DemoArgs, tyro.conf.subcommand("demo")]
 )
 
@@ -99,6 +102,7 @@ HANDLERS = {
     PackageArgs: policies.run_package,
     PlotArgs: plot.run,
     FiguresArgs: figures.run,
+    ProbeArgs: probe.run,
     DemoArgs: demo.run,
     EnvBenchArgs: env_bench.run,
     LearnerBenchArgs: learner_bench.run,

@@ -17,6 +17,7 @@ import numpy as np
 
 from apr.commands import checks
 from apr.envs.scripted import scripted_grasp_action
+from apr.train.config import ACTIVE_ENV_ID, PASSIVE_ENV_ID
 
 
 @dataclass
@@ -41,8 +42,8 @@ def run(args: RenderArgs) -> None:
         checks.output_folder("--out", args.out),
     ])  # fmt: skip
     args.out.mkdir(parents=True, exist_ok=True)
-    written = _render_episode("apr/ActiveGrasp-v0", "active", args)
-    written += _render_episode("apr/PassiveGrasp-v0", "passive", args)
+    written = _render_episode(ACTIVE_ENV_ID, "active", args)
+    written += _render_episode(PASSIVE_ENV_ID, "passive", args)
     print(f"wrote {len(written)} PNGs to {args.out}/ (e.g. {written[0].name})")
 
 

@@ -13,7 +13,7 @@ import tyro
 
 from apr.commands import backends, checks
 from apr.model.config import ModelConfig
-from apr.train.config import DERIVED_MODEL_FIELDS, PASSIVE_ENV_ID, PRESETS, TrainConfig, flag, preset
+from apr.train.config import ACTIVE_ENV_ID, DERIVED_MODEL_FIELDS, PRESETS, TrainConfig, flag, is_passive, preset
 
 PresetName = Literal[tuple(PRESETS)]  # type: ignore[valid-type]
 
@@ -82,10 +82,10 @@ def _contradicted(argv: list[str], config: TrainConfig) -> list[str]:
     passive run started from an active preset inherits its logpolar, which is no contradiction (the passive
     cameras are resized whatever it says, and the run records resize: ``TrainConfig.resolved``)."""
     found = []
-    if _given(argv, "env.foveation") and config.env.foveation == "logpolar" and config.env.env_id == PASSIVE_ENV_ID:
-        found.append(f"--env.foveation logpolar contradicts --env.env-id {PASSIVE_ENV_ID}: the passive model's "
+    if _given(argv, "env.foveation") and config.env.foveation == "logpolar" and is_passive(config.env.env_id):
+        found.append(f"--env.foveation logpolar contradicts --env.env-id {config.env.env_id}: the passive model's "
                      "static cameras are resized, with no log-polar warp; drop the flag, or use --env.env-id "
-                     "apr/ActiveGrasp-v0")  # fmt: skip
+                     f"{ACTIVE_ENV_ID}")  # fmt: skip
     return found
 
 

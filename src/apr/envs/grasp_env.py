@@ -1,4 +1,4 @@
-"""Gymnasium environments of APR: ``apr/ActiveGrasp-v0`` (a head camera that looks) and ``apr/PassiveGrasp-v0``
+"""Gymnasium environments of APR: ``apr/ActiveGrasp-v1`` (a head camera that looks) and ``apr/PassiveGrasp-v1``
 (three static cameras). Both share the episode logic of :class:`GraspEnv`; they differ only in how a step's
 three views are made.
 """
@@ -28,7 +28,7 @@ class GraspEnv(gym.Env):
 
     def __init__(self, *, dof: int, target: str, foveation: str, split: str, renderer: str,
                  render_mode: str | None, with_head: bool, reach_scale: float, render_size: int,
-                 reveal_target: bool):  # fmt: skip
+                 reveal_target: bool, limit_in_task: bool):  # fmt: skip
         _check_choice("dof", dof, DOFS)
         _check_render_size(render_size)
         _check_choice("foveation", foveation, FOVEATIONS)
@@ -42,6 +42,9 @@ class GraspEnv(gym.Env):
         self.reveal_target = bool(reveal_target)
         self.observes_fixation = self.learned_fixation or self.reveal_target
         """The observation has ``fixation``: the point a learned fixation chose, or the revealed target."""
+        self.limit_in_task = bool(limit_in_task)
+        """The 15-step limit is part of the task (v1): it terminates the episode, and the observation has
+        ``steps_left``. False (v0): the limit truncates, and the observation says nothing of time."""
         self.world = GraspWorld(renderer, with_head=with_head, render_size=render_size)
 
         views, size, channels = CAMERA.views_per_step, CAMERA.image_size, 4 if self.with_mask else 3
@@ -52,6 +55,8 @@ class GraspEnv(gym.Env):
         }
         if self.observes_fixation:
             observation["fixation"] = spaces.Box(-2.0, 2.0, (3,), np.float32)
+        if self.limit_in_task:
+            observation["steps_left"] = spaces.Discrete(GRASP.max_grasp_steps + 1)
         grasp_action = spaces.Box(-1.0, 1.0, (dof,), np.float32)
         if self.learned_fixation:
             observation["phase"] = spaces.Discrete(2)
@@ -68,6 +73,7 @@ class GraspEnv(gym.Env):
         self._phase = GRASP_PHASE
         self._grasp_steps = 0
         self._tip_distance = 0.0
+        self._tip = np.zeros(3)
         self._object_centres = np.zeros((0, 3))
         self._episode_over = True
         self.on_grasp_start: Callable[[GraspEnv], None] | None = None
@@ -80,6 +86,7 @@ class GraspEnv(gym.Env):
         self._phase = FIXATION_PHASE if self.learned_fixation else GRASP_PHASE
         self._grasp_steps = 0
         self._tip_distance = self._distance_to_fixation()
+        self._tip = self.world.arm.tool_tip()
         self._object_centres = self._centres_of_objects()
         self._episode_over = False
         return self._observation(), self._info()
@@ -105,7 +112,7 @@ class GraspEnv(gym.Env):
         distance = self._distance_to_fixation()
         reach_reward = self.task.reach_reward(self._tip_distance, distance)
         self._tip_distance = distance
-        tip = self.world.arm.tool_tip()
+        tip = self._tip = self.world.arm.tool_tip()
         attempted = bool(tip[2] <= GRASP.grasp_height)
         success, lifted = False, 0
         if attempted:
@@ -115,8 +122,9 @@ class GraspEnv(gym.Env):
             outcome = self.task.grasp_outcome(self.world, tip, self.fixation_point)
             success, lifted = outcome.success, len(outcome.lifted)
         grasp_reward = float(success)
-        terminated = attempted
-        truncated = not attempted and self._grasp_steps >= GRASP.max_grasp_steps
+        at_limit = not attempted and self._grasp_steps >= GRASP.max_grasp_steps
+        terminated = attempted or (at_limit and self.limit_in_task)
+        truncated = at_limit and not self.limit_in_task
         self._episode_over = terminated or truncated
         info = self._info(attempted=attempted, success=success, lifted=lifted, reach_reward=reach_reward,
                           grasp_reward=grasp_reward)  # fmt: skip
@@ -161,6 +169,8 @@ class GraspEnv(gym.Env):
             observation["fixation"] = np.asarray(self.fixation_point, dtype=np.float32).copy()
         if self.learned_fixation:
             observation["phase"] = self._phase
+        if self.limit_in_task:
+            observation["steps_left"] = GRASP.max_grasp_steps - self._grasp_steps
         return observation
 
     def _info(self, attempted: bool = False, success: bool = False, lifted: int = 0, reach_reward: float = 0.0,
@@ -177,6 +187,8 @@ class GraspEnv(gym.Env):
             "num_objects": len(self.world.object_uids),
             "object_centres": self._object_centres.astype(np.float32),
             "fixation_object_distance": self._fixation_object_distance(),
+            "tool_tip": self._tip.astype(np.float32),
+            "tip_fixation_distance": self._tip_distance,
         }
 
     def _centres_of_objects(self) -> np.ndarray:
@@ -212,7 +224,7 @@ class ActiveGraspEnv(GraspEnv):
     samples each render (256x256 by default) to 64x64 with the log-polar-like warp (or a plain resize).
 
     ## Arguments
-    ``gymnasium.make("apr/ActiveGrasp-v0", dof=6, target="env", foveation="logpolar", split="train",
+    ``gymnasium.make("apr/ActiveGrasp-v1", dof=6, target="env", foveation="logpolar", split="train",
     renderer="tiny")``
 
     - ``dof``: 6 (dx, dy, dz, da, db, dc) or 4 (dx, dy, dz, da; the gripper points down).
@@ -230,6 +242,9 @@ class ActiveGraspEnv(GraspEnv):
       (``docs/decisions.md``, "Views and rendering").
     - ``reveal_target``: also put the target's true centre in the observation (``fixation``; ``target="env"``
       only). Not the robot's knowledge: for scripted baselines and the labelled ``cpu-4d`` preset.
+    - ``limit_in_task``: the 15-step limit is part of the task (default; ``apr/ActiveGrasp-v1``): reaching it
+      terminates the episode and the observation has ``steps_left``. ``False`` is ``apr/ActiveGrasp-v0``, the
+      earlier task: the limit truncates, and nothing in the observation tells the time (see Episode End).
 
     ## Action Space
     ``target="env"``: ``Box(-1, 1, (dof,), float32)``, the change of the gripper's commanded pose: position
@@ -254,11 +269,15 @@ class ActiveGraspEnv(GraspEnv):
       centre in the fixation phase). With the environment's target it is the target's true centre, the
       simulator's answer, which a policy never sees: only ``reveal_target=True`` puts it here.
     - ``phase`` (``target="learned"`` only): 0 in the fixation phase, 1 in the grasp phase.
+    - ``steps_left`` (``limit_in_task=True``, v1): ``Discrete(16)``, the grasp steps the episode has left: 15
+      at reset and in the fixation phase, 15 - k after the k-th grasp step. The robot's own clock.
 
     An observation holds only what the robot can know (its images, its joints and poses, the point it chose),
     unless ``reveal_target=True``. The simulator's view of the scene is in ``info``: ``fixation_point`` (the
     point the head fixates), ``object_centres`` (N, 3) and ``fixation_object_distance`` (m from the fixation
-    point to the nearest object centre), as the objects lay at reset or at the fixation action.
+    point to the nearest object centre), as the objects lay at reset or at the fixation action. ``tool_tip``
+    is the tool tip (m) after the step's motion (before the fingers close, on an attempt) and
+    ``tip_fixation_distance`` its distance to the fixation point (the target's centre with ``target="env"``).
 
     ## Episode structure
     ``target="env"``: reset fixates the target; then up to 15 grasp steps. ``target="learned"``: reset shows
@@ -275,17 +294,21 @@ class ActiveGraspEnv(GraspEnv):
 
     ## Episode End
     Terminated when a grasp is attempted: the tool tip drops to z <= -0.115 m; the fingers then close and the
-    arm lifts, and the object counts as lifted when its base ends above z = 0.2 m. Truncated after 15 grasp
-    steps without an attempt. ``info["grasp_attempted"]`` and ``info["grasp_success"]`` tell the outcome.
+    arm lifts, and the object counts as lifted when its base ends above z = 0.2 m. After 15 grasp steps without
+    an attempt the episode ends with no grasp reward: terminated in v1, where the limit is part of the task (the
+    paper's "a fixed number of timesteps (maximum 15)") and ``steps_left`` says how near it is (Pardo et al.
+    2018, "Time Limits in Reinforcement Learning"); truncated in v0 (``limit_in_task=False``).
+    ``info["grasp_attempted"]`` and ``info["grasp_success"]`` tell the outcome.
     """
 
     def __init__(self, dof: int = 6, target: str = "env", foveation: str = "logpolar", split: str = "train",
                  renderer: str = "tiny", render_mode: str | None = None,
                  reach_scale: float = REWARD.reach_scale, render_size: int = CAMERA.render_size,
-                 reveal_target: bool = False):  # fmt: skip
+                 reveal_target: bool = False, limit_in_task: bool = True):  # fmt: skip
         super().__init__(dof=dof, target=target, foveation=foveation, split=split, renderer=renderer,
                          render_mode=render_mode, with_head=True, reach_scale=reach_scale,
-                         render_size=render_size, reveal_target=reveal_target)  # fmt: skip
+                         render_size=render_size, reveal_target=reveal_target,
+                         limit_in_task=limit_in_task)  # fmt: skip
 
     def _render_views(self):
         head = self.world.head
@@ -307,29 +330,32 @@ class PassiveGraspEnv(GraspEnv):
     attention to any object. Renders (256x256 by default) are resized to 64x64 (no log-polar warp).
 
     ## Arguments
-    ``gymnasium.make("apr/PassiveGrasp-v0", dof=6, split="train", renderer="tiny")``, as for the active env
+    ``gymnasium.make("apr/PassiveGrasp-v1", dof=6, split="train", renderer="tiny")``, as for the active env
     (``reveal_target`` too).
 
     ## Action Space
-    ``Box(-1, 1, (dof,), float32)``, as for ``apr/ActiveGrasp-v0`` with ``target="env"``.
+    ``Box(-1, 1, (dof,), float32)``, as for ``apr/ActiveGrasp-v1`` with ``target="env"``.
 
     ## Observation Space
     ``images`` uint8 (3, 64, 64, 4) (RGB and the target mask), ``viewpoints`` float32 (3, 6) (each camera's
-    position and unit line of sight, constant), ``gripper`` float32 (9,). The target's centre, toward which
-    the reach reward pays, is not observed: the policy must find the target in the images (``info`` has it as
-    ``fixation_point``; ``reveal_target=True`` adds it as ``fixation``, for scripted baselines).
+    position and unit line of sight, constant), ``gripper`` float32 (9,), and in v1 ``steps_left``. The target's
+    centre, toward which the reach reward pays, is not observed: the policy must find the target in the images
+    (``info`` has it as ``fixation_point``; ``reveal_target=True`` adds it as ``fixation``, for scripted
+    baselines).
 
     ## Rewards and Episode End
-    As for ``apr/ActiveGrasp-v0`` with ``target="env"``: the reach reward toward the target's centre, 1 for
-    lifting the target; terminated by a grasp attempt, truncated after 15 steps.
+    As for ``apr/ActiveGrasp-v1`` with ``target="env"``: the reach reward toward the target's centre, 1 for
+    lifting the target; terminated by a grasp attempt, and after 15 steps (v1; truncated in v0).
     """
 
     def __init__(self, dof: int = 6, split: str = "train", renderer: str = "tiny",
                  render_mode: str | None = None, reach_scale: float = REWARD.reach_scale,
-                 render_size: int = CAMERA.render_size, reveal_target: bool = False):  # fmt: skip
+                 render_size: int = CAMERA.render_size, reveal_target: bool = False,
+                 limit_in_task: bool = True):  # fmt: skip
         super().__init__(dof=dof, target="env", foveation="resize", split=split, renderer=renderer,
                          render_mode=render_mode, with_head=False, reach_scale=reach_scale,
-                         render_size=render_size, reveal_target=reveal_target)  # fmt: skip
+                         render_size=render_size, reveal_target=reveal_target,
+                         limit_in_task=limit_in_task)  # fmt: skip
         self.cameras = passive_cameras()
         self._viewpoints = np.stack([np.concatenate([cam.eye, cam.forward]) for cam in self.cameras])
 

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from apr.envs.config import REWARD
+from apr.envs.config import GRASP, REWARD
 from apr.model.config import ModelConfig, gqn_learning_rate, pixel_sigma
 from apr.model.encoder import TowerEncoder, encode_scene, images_to_float, tile
 from apr.model.generator import ConvDRAWGenerator, gqn_elbo_loss
@@ -62,6 +62,9 @@ class Observation:
     fixation: torch.Tensor | None = None
     """float32 (B, 3): the point the head fixates (m), where the observation has it (a learned fixation's
     chosen point; the revealed target of the privileged preset); None otherwise."""
+    steps_left: torch.Tensor | None = None
+    """float32 (B,): the grasp steps the episode has left (15 to 0), where the observation has them (v1); None
+    otherwise."""
 
     @classmethod
     def from_env(cls, obs: Mapping[str, Any], device: torch.device | str = "cpu") -> Observation:
@@ -71,30 +74,34 @@ class Observation:
         viewpoints = _as_tensor(obs["viewpoints"], device, torch.float32)
         gripper = _as_tensor(obs["gripper"], device, torch.float32)
         fixation = _as_tensor(obs["fixation"], device, torch.float32) if "fixation" in obs else None
+        steps_left = _as_tensor(obs["steps_left"], device, torch.float32) if "steps_left" in obs else None
         if images.ndim == 4:
             images, viewpoints, gripper = images[None], viewpoints[None], gripper[None]
             fixation = None if fixation is None else fixation[None]
-        return cls(images, viewpoints, gripper, fixation)
+            steps_left = None if steps_left is None else steps_left.reshape(1)
+        return cls(images, viewpoints, gripper, fixation, steps_left)
 
     def __len__(self) -> int:
         return self.images.shape[0]
 
     def __getitem__(self, index: slice | torch.Tensor) -> Observation:
-        fixation = None if self.fixation is None else self.fixation[index]
-        return Observation(self.images[index], self.viewpoints[index], self.gripper[index], fixation)
+        return Observation(*(None if value is None else value[index] for value in self._fields()))
 
     def to(self, device: torch.device | str) -> Observation:
-        fixation = None if self.fixation is None else self.fixation.to(device)
-        return Observation(self.images.to(device), self.viewpoints.to(device), self.gripper.to(device), fixation)
+        return Observation(*(None if value is None else value.to(device) for value in self._fields()))
+
+    def _fields(self) -> tuple[torch.Tensor | None, ...]:
+        return self.images, self.viewpoints, self.gripper, self.fixation, self.steps_left
 
     def poses(self) -> torch.Tensor:
         """(B, 3, 15): each view's (v, g), the proprioceptive input of the encoder and the generator."""
         gripper = self.gripper[:, None, :].expand(-1, self.viewpoints.shape[1], -1)
         return torch.cat([self.viewpoints, gripper], dim=-1)
 
-    def proprioception(self, gripper: bool, fixation: bool) -> torch.Tensor:
-        """(B, 9 * gripper + 6 * fixation): g, then the fixation point f and f - tip, what the policy heads see
-        beside r (``ModelConfig.heads_see_proprioception``, ``heads_see_fixation``). Positions are in units of
+    def proprioception(self, gripper: bool, fixation: bool, steps_left: bool = False) -> torch.Tensor:
+        """(B, 9 * gripper + 6 * fixation + steps_left): g, then the fixation point f and f - tip, then the steps
+        left as a fraction of the limit: what the policy heads see beside r (``ModelConfig.heads_see_proprioception``,
+        ``heads_see_fixation``, ``heads_see_steps_left``). Positions are in units of
         ``PROPRIOCEPTION_SCALE`` from ``PROPRIOCEPTION_ORIGIN`` (the tool tip is g's first three entries), so that
         every entry varies by about 1, as r's channels do; in metres they would vary by ~0.1 and the heads would
         barely feel them."""
@@ -107,6 +114,11 @@ class Observation:
                 raise ValueError("the heads see the fixation point, but the observation has none (only a learned "
                                  "fixation or reveal_target=True put it there)")  # fmt: skip
             parts += [(self.fixation - origin) / scale, (self.fixation - tip) / scale]
+        if steps_left:
+            if self.steps_left is None:
+                raise ValueError("the heads see the steps left, but the observation has none (only the environments' "
+                                 "v1, whose 15-step limit is part of the task, put them there)")  # fmt: skip
+            parts.append(self.steps_left[:, None] / GRASP.max_grasp_steps)
         return torch.cat(parts, dim=-1)
 
 
@@ -122,7 +134,8 @@ class GraspBatch:
     next_obs: Observation
     """The observation after the action (for a truncated episode, its final observation)."""
     terminated: torch.Tensor
-    """(B,) bool/float: 1 when the episode ended by a grasp attempt (no bootstrap); 0 when truncated."""
+    """(B,) bool/float: 1 when the episode ended (no bootstrap): by a grasp attempt or, in v1, at the 15-step limit,
+    which is part of the task; 0 otherwise, and at v0's truncation, which bootstraps."""
 
 
 @dataclass
@@ -277,7 +290,8 @@ class APRAgent:
         config = self.config
         if not config.head_proprioception_dim:
             return r
-        proprioception = obs.proprioception(config.heads_see_proprioception, config.heads_see_fixation)
+        proprioception = obs.proprioception(config.heads_see_proprioception, config.heads_see_fixation,
+                                            config.heads_see_steps_left)  # fmt: skip
         return torch.cat([r, tile(proprioception.to(r.dtype), r.shape[-1])], dim=1)
 
     def _first_two(self, batch: int) -> torch.Tensor:
@@ -325,6 +339,36 @@ class APRAgent:
             )
             image = self.generator.sample(r, query_pose, noise)
         return image.permute(0, 2, 3, 1).float().cpu().numpy()
+
+    @torch.no_grad()
+    def gqn_measure(self, obs: Mapping[str, Any] | Observation) -> dict[str, float]:
+        """How well the generator predicts view 2 of each observation from views 0 and 1, beside the mean image.
+
+        Returns:
+            ``prediction_mse`` (the prior's prediction with zero noise: its latent means), ``reconstruction_mse``
+            (through the posterior, which sees the view), ``kl`` (nats per image, summed over steps), and
+            ``mean_image_mse``: the error of one image for all, the pixel-wise mean of these very views (a
+            predictor that knows nothing of the scene; its error is the views' variance). Pixel errors are per
+            value, images in [0, 1]. {} for the "w/o representation" ablation, which has no generator.
+        """
+        if self.generator is None:
+            return {}
+        obs = obs.to(self.device) if isinstance(obs, Observation) else Observation.from_env(obs, self.device)
+        batch = len(obs)
+        r = self._scene(obs, self._first_two(batch), with_grad=0).float()
+        truth, pose = self._views(obs, torch.full((batch, 1), 2, device=self.device))
+        truth, pose = truth[:, 0].float(), pose[:, 0]
+        noise = torch.zeros(self.generator.noise_shape(batch, r.shape[-1]), device=self.device)
+        predicted = self.generator.sample(r, pose, noise)
+        reconstructed, kl = self.generator(r, pose, truth, noise)
+        mean_image = truth.mean(dim=0, keepdim=True)
+        return {
+            "prediction_mse": float(((predicted - truth) ** 2).mean()),
+            "reconstruction_mse": float(((reconstructed - truth) ** 2).mean()),
+            "kl": float(kl.mean()),
+            "mean_image_mse": float(((mean_image - truth) ** 2).mean()),
+            "views": batch,
+        }
 
     # ------------------------------------------------------------------ learning
     def compute_losses(

@@ -84,6 +84,10 @@ class ModelConfig:
     """True (ours): the heads also see the fixation point f and f - tip, tiled beside r. Only where the
     observation has f: the point a learned fixation chose, or the target's true centre in the labelled
     privileged preset (``--env.reveal-target``); never the simulator's answer otherwise."""
+    heads_see_steps_left: bool = False
+    """True (ours, the recipe of every Table 1 preset): the heads also see the grasp steps the episode has left,
+    as a fraction of the 15-step limit, tiled beside r: the robot's own clock. It needs the environment's v1, whose
+    limit is part of the task (docs/decisions.md, "The 15-step limit"; Pardo et al. 2018)."""
     log_std_min: float = -20.0
     """Clamp of the actor's log standard deviation, low end (Haarnoja et al. 2018 reference code: -20)."""
     log_std_max: float = 2.0
@@ -168,8 +172,9 @@ class ModelConfig:
     @property
     def head_proprioception_dim(self) -> int:
         """Channels the proprioception adds to a head's input: g (9) with ``heads_see_proprioception``, f (3) and
-        f - tip (3) with ``heads_see_fixation``."""
-        return self.gripper_dim * self.heads_see_proprioception + 6 * self.heads_see_fixation
+        f - tip (3) with ``heads_see_fixation``, the steps left (1) with ``heads_see_steps_left``."""
+        return (self.gripper_dim * self.heads_see_proprioception + 6 * self.heads_see_fixation
+                + self.heads_see_steps_left)  # fmt: skip
 
     @property
     def pose_dim(self) -> int:

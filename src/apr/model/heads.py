@@ -30,6 +30,28 @@ def conv_block(in_channels: int, channels: tuple[int, ...]) -> nn.Sequential:
     return nn.Sequential(*layers, nn.Flatten())
 
 
+class SpatialSoftArgmax(nn.Module):
+    """Keypoints of feature maps (Levine et al. 2016, "End-to-End Training of Deep Visuomotor Policies"; Finn et al.
+    2016, "Deep Spatial Autoencoders"): per channel, the expected position of a softmax over its cells.
+
+    (B, C, H, W) -> (B, 2C): each channel's expected x (column) then y (row), in [-1, 1] from the first cell to the
+    last. The softmax temperature is learned (it starts at 1).
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.log_temperature = nn.Parameter(torch.zeros(()))
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        batch, channels, height, width = features.shape
+        weights = torch.softmax(features.flatten(2) / self.log_temperature.exp(), dim=-1)  # (B, C, H * W)
+        rows = torch.linspace(-1.0, 1.0, height, device=features.device, dtype=weights.dtype)
+        columns = torch.linspace(-1.0, 1.0, width, device=features.device, dtype=weights.dtype)
+        x = (weights.unflatten(-1, (height, width)).sum(dim=2) * columns).sum(-1)  # (B, C)
+        y = (weights.unflatten(-1, (height, width)).sum(dim=3) * rows).sum(-1)
+        return torch.stack([x, y], dim=-1).flatten(1)
+
+
 class Actor(nn.Module):
     """pi(a | r): conv block + linear -> mean and log-std of a Gaussian, squashed by tanh into [-1, 1]^A."""
 

@@ -52,7 +52,7 @@ from apr.reproduce.policies import (
     run_checkpoints,
 )
 from apr.train.checkpoints import CheckpointError, read_checkpoint
-from apr.train.config import EnvConfig
+from apr.train.config import EnvConfig, is_passive, model_env_id
 from apr.train.evaluation import EVAL_SEED
 from apr.train.rollout import stack
 
@@ -272,12 +272,13 @@ def fig3_driver(snapshot: PolicySnapshot) -> tuple[EnvConfig, EnvConfig, ActionS
         (driving env, replaying env, policy or None for the scripted one, label of the policy).
     """
     env = snapshot.config.env  # each variant keeps the run's dof, renderer, render size, reveal_target, reach scale
-    active = dataclasses.replace(env, env_id="apr/ActiveGrasp-v0", target="env", foveation="logpolar")
-    passive = dataclasses.replace(env, env_id="apr/PassiveGrasp-v0", target="env", foveation="resize")
+    active = dataclasses.replace(env, env_id=model_env_id(env.env_id, passive=False), target="env",
+                                 foveation="logpolar")  # fmt: skip
+    passive = dataclasses.replace(env, env_id=model_env_id(env.env_id, passive=True), target="env", foveation="resize")
     if env.learned_fixation:
         return active, passive, None, SCRIPTED_LABEL
     policy = agent_actions(snapshot.agent)
-    if env.env_id == "apr/PassiveGrasp-v0":
+    if is_passive(env.env_id):
         return passive, active, policy, f"the policy of {snapshot.label} (acting on the passive inputs)"
     own = dataclasses.replace(active, foveation=env.foveation)
     return own, passive, policy, f"the policy of {snapshot.label} (acting on the active inputs)"
@@ -369,7 +370,7 @@ def make_figures(
         renderer,
         max_grasp_steps=len(driven.grasp_actions),
     )
-    active, passive = (driven, replayed) if driving.env_id == "apr/ActiveGrasp-v0" else (replayed, driven)
+    active, passive = (driven, replayed) if not is_passive(driving.env_id) else (replayed, driven)
     keep("fig3", active_vs_passive_figure(active, passive, driver_label, steps), "fig3_active_vs_passive.png")
 
     provenance = (

@@ -22,8 +22,26 @@ import tyro
 from apr.envs.grasp_env import render_size_problem
 from apr.model.config import ModelConfig
 
-PASSIVE_ENV_ID = "apr/PassiveGrasp-v0"
+ACTIVE_ENV_ID = "apr/ActiveGrasp-v1"
+"""The active model's environment: the head camera that looks."""
+PASSIVE_ENV_ID = "apr/PassiveGrasp-v1"
 """The passive model's environment: three static cameras, no head, no log-polar warp."""
+EnvId = Literal["apr/ActiveGrasp-v1", "apr/PassiveGrasp-v1", "apr/ActiveGrasp-v0", "apr/PassiveGrasp-v0"]
+"""v1: the 15-step limit is part of the task (it terminates; the observation has the steps left). v0: the earlier
+task (the limit truncates, no clock), which runs saved before v1 name."""
+
+
+def is_passive(env_id: str) -> bool:
+    """``env_id`` is a version of the passive model's environment."""
+    return env_id.startswith("apr/PassiveGrasp-")
+
+
+def model_env_id(env_id: str, passive: bool) -> str:
+    """The active (or passive) model's environment at the version of ``env_id``."""
+    version = env_id.rpartition("-")[2]
+    return f"apr/{'Passive' if passive else 'Active'}Grasp-{version}"
+
+
 STEPS_PER_GRASP_ESTIMATE = 10
 """Grasp steps an episode takes on average (a guess for sizing schedules; episodes take 1 to 15)."""
 
@@ -41,8 +59,9 @@ def flag(path: str) -> str:
 class EnvConfig:
     """Which environment the workers run (paper, section 4)."""
 
-    env_id: Literal["apr/ActiveGrasp-v0", "apr/PassiveGrasp-v0"] = "apr/ActiveGrasp-v0"
-    """The active model (head camera) or the passive one (three static cameras)."""
+    env_id: EnvId = ACTIVE_ENV_ID
+    """The active model (head camera) or the passive one (three static cameras); v0 is the earlier task, whose
+    15-step limit truncates with no clock in the observation (docs/decisions.md, "The 15-step limit")."""
     dof: Literal[4, 6] = 6
     """Gripper degrees of freedom (paper: 6; 4 for Active-Learned-4D)."""
     target: Literal["env", "learned"] = "env"
@@ -72,18 +91,23 @@ class EnvConfig:
         kwargs: dict[str, Any] = {"dof": self.dof, "split": split, "renderer": self.renderer,
                                   "reach_scale": self.reach_scale, "render_size": self.render_size,
                                   "reveal_target": self.reveal_target}  # fmt: skip
-        if self.env_id == "apr/ActiveGrasp-v0":
+        if not is_passive(self.env_id):
             kwargs.update(target=self.target, foveation=self.foveation)
         return kwargs
 
     @property
     def learned_fixation(self) -> bool:
-        return self.env_id == "apr/ActiveGrasp-v0" and self.target == "learned"
+        return not is_passive(self.env_id) and self.target == "learned"
 
     @property
     def observes_fixation(self) -> bool:
         """The observations hold a fixation point: the one a learned fixation chose, or the revealed target."""
         return self.learned_fixation or self.reveal_target
+
+    @property
+    def observes_steps_left(self) -> bool:
+        """The observations hold the grasp steps left: the environments' v1, whose 15-step limit is part of the task."""
+        return not self.env_id.endswith("-v0")
 
     @property
     def image_channels(self) -> int:
@@ -156,7 +180,7 @@ class TrainConfig:
             model = model.replace(gqn_anneal_updates=max(int(expected), 1))
         workers = self.workers or os.cpu_count() or 1
         env = self.env
-        if env.env_id == PASSIVE_ENV_ID:  # its three static cameras are resized, whatever a preset said
+        if is_passive(env.env_id):  # its three static cameras are resized, whatever a preset said
             env = dataclasses.replace(env, foveation="resize")
         return dataclasses.replace(self, env=env, model=model, workers=workers,
                                    eval_workers=self.eval_workers or workers)  # fmt: skip
@@ -164,16 +188,20 @@ class TrainConfig:
     def problems(self) -> list[str]:
         """What makes this configuration unrunnable, one sentence per field, each naming its flag (empty: none)."""
         problems = [f"{flag(path)} {message}" for path, message in _field_problems(self)]
-        if self.env.env_id == PASSIVE_ENV_ID and self.env.target == "learned":
-            problems.append(f"--env.target learned contradicts --env.env-id {PASSIVE_ENV_ID}: the passive model's "
+        if is_passive(self.env.env_id) and self.env.target == "learned":
+            problems.append(f"--env.target learned contradicts --env.env-id {self.env.env_id}: the passive model's "
                             "cameras are static, it has no fixation to learn; use --env.target env, or "
-                            "--env.env-id apr/ActiveGrasp-v0 for learned fixation")  # fmt: skip
+                            f"--env.env-id {ACTIVE_ENV_ID} for learned fixation")  # fmt: skip
         if self.env.reveal_target and self.env.target == "learned":
             problems.append("--env.reveal-target needs --env.target env: a learned fixation has no target to reveal")
         if self.model.heads_see_fixation and not self.env.observes_fixation:
             problems.append("--model.heads-see-fixation needs a fixation point in the observation: --env.target "
                             "learned (the point chosen), or --env.reveal-target (the simulator's answer, not the "
                             "robot's knowledge)")  # fmt: skip
+        if self.model.heads_see_steps_left and not self.env.observes_steps_left:
+            problems.append(f"--model.heads-see-steps-left needs the steps left in the observation: --env.env-id "
+                            f"{self.env.env_id} is the earlier task, whose limit truncates with no clock; use its "
+                            "-v1")  # fmt: skip
         if self.replay_capacity >= 1 and self.model.batch_size >= 1 and self.replay_capacity < self.model.batch_size:
             problems.append(f"--replay-capacity {self.replay_capacity} is smaller than one learner batch "
                             f"(--model.batch-size {self.model.batch_size}): the learner would never start")  # fmt: skip
@@ -305,9 +333,10 @@ CPU_RENDERING: dict[str, Any] = dict(renderer="tiny", render_size=128)
 """How the CPU presets render (ours; the paper presets keep EGL at 256x256): TinyRenderer at 128x128 costs an env
 step 70 ms of CPU against 150 ms for EGL through llvmpipe at 256 and renders bitwise reproducibly; the price is a
 blurrier inner ring of the log-polar views (docs/decisions.md, "Views and rendering"; docs/benchmarks.md)."""
-RECIPE: dict[str, Any] = dict(heads_see_proprioception=True, init_temperature=0.01)
+RECIPE: dict[str, Any] = dict(heads_see_proprioception=True, heads_see_steps_left=True, init_temperature=0.01)
 """The learning recipe of every preset of Table 1, at both scales (ours; docs/decisions.md, "One recipe for Table
-1"): the heads see the gripper pose g beside r, and the entropy temperature starts at 0.01. With a learned
+1"): the heads see the gripper pose g and the grasp steps left beside r (the 15-step limit is part of the task:
+"The 15-step limit"), and the entropy temperature starts at 0.01. With a learned
 fixation the heads also see the point chosen, and the bandit learns from :data:`PROXIMITY_BANDIT`
 (:func:`with_recipe`). Never the simulator's target: the rows differ in what they see."""
 PROXIMITY_BANDIT: dict[str, Any] = dict(fixation_reward="proximity", fixation_relabels=8)
@@ -344,7 +373,8 @@ def with_recipe(config: TrainConfig) -> TrainConfig:
     return dataclasses.replace(config, model=config.model.replace(**changes))
 
 
-SCALE_FREE_MODEL_FIELDS = ("representation", "heads_see_proprioception", "heads_see_fixation", "init_temperature",
+SCALE_FREE_MODEL_FIELDS = ("representation", "heads_see_proprioception", "heads_see_fixation", "heads_see_steps_left",
+                           "init_temperature",
                            "fixation_reward", "fixation_relabels", "fixation_proximity_radius")  # fmt: skip
 """Model fields a scale keeps: the structure (the ablation switch) and the recipe. The rest are sizes and speed."""
 
@@ -361,7 +391,7 @@ def cpu_scale(name: str, config: TrainConfig) -> TrainConfig:
 PAPER_PRESET_LIST: list[tuple[str, tuple[str, TrainConfig]]] = [
     _preset("active-target", "head camera fixating the env's target, 6-DoF, log-polar, GQN (Table 1: 84%)"),
     _preset("passive-target", "three static cameras, 6-DoF, no log-polar, GQN (Table 1: 76%)",
-            env=dict(env_id="apr/PassiveGrasp-v0", foveation="resize")),
+            env=dict(env_id=PASSIVE_ENV_ID, foveation="resize")),
     _preset("active-target-no-logpolar", "active-target with a plain resize instead of the warp (Table 1: 79%)",
             env=dict(foveation="resize")),
     _preset("active-target-no-representation",

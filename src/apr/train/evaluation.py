@@ -11,12 +11,14 @@ from typing import Literal
 import numpy as np
 from tqdm import tqdm
 
-from apr.envs.config import REWARD, SCENE
+from apr.envs.config import GRASP, REWARD, SCENE
 from apr.model.agent import APRAgent
 from apr.train.config import ConfigError, EnvConfig
-from apr.train.rollout import BLIND_PHASES, EpisodeResult, Policy, run_round
+from apr.train.rollout import BLIND_PHASES, EpisodeResult, Policy, Recorder, run_round, stack
 from apr.train.workers import LocalWorkers, WorkersFactory, pool_renderer
 
+GQN_MEASURE_SCENES = 100
+"""Scenes of an evaluation (its first episodes) whose first views the generator's measure takes."""
 EVAL_SEED = 2_000_000_000
 """Evaluation episodes use fixed seeds (EVAL_SEED + k), the same for every checkpoint and run: paired comparisons."""
 
@@ -48,9 +50,16 @@ class EvalResult:
     "both": :func:`apr.train.rollout.run_round`)."""
     fixation: dict = field(default_factory=dict)
     """Learned fixation: where the chosen points lay (:func:`fixation_statistics`); empty otherwise."""
+    gqn: dict = field(default_factory=dict)
+    """The generator on the episodes' first views (:meth:`apr.model.agent.APRAgent.gqn_measure`): its prediction
+    error of view 2 from views 0 and 1, beside the mean image's; empty without a generator, and when blind."""
+    episode_ends: dict = field(default_factory=dict)
+    """How the episodes ended (:func:`episode_end_statistics`): how many at the 15-step limit, and where the tool
+    tip then was."""
     outcomes: list[dict] = field(default_factory=list)
-    """Per episode: seed, grasp steps, attempted, success (and with a learned fixation the chosen point and its
-    distance to the nearest object)."""
+    """Per episode: seed, grasp steps, attempted, success, the tool tip's height and distance to the fixation point
+    after each grasp step (m), and with a learned fixation the chosen point and its distance to the nearest
+    object."""
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -95,12 +104,34 @@ def evaluate(agent: APRAgent, env: EnvConfig, episodes: int, split: str = "test"
     def policy(observations, phase):
         return agent.act(observations, deterministic=True, policy=phase)
 
-    return evaluate_policy(policy, env, episodes, split, num_workers, workers, trained_renderer, on_mismatch, blind)
+    first_views = FirstViews()
+    result = evaluate_policy(policy, env, episodes, split, num_workers, workers, trained_renderer, on_mismatch,
+                             blind, recorder=first_views)  # fmt: skip
+    if not blind and first_views.observations:
+        result.gqn = agent.gqn_measure(stack(first_views.observations[:GQN_MEASURE_SCENES]))
+    return result
+
+
+class FirstViews:
+    """A recorder (:class:`apr.train.rollout.Recorder`) that keeps each episode's first observation."""
+
+    def __init__(self) -> None:
+        self.observations: list[dict] = []
+
+    def on_reset(self, worker: int, observation: dict) -> None:
+        self.observations.append(observation)
+
+    def on_fixation(self, worker: int, action: np.ndarray, result: object) -> None: ...
+
+    def on_step(self, worker: int, action: np.ndarray, result: object) -> None: ...
+
+    def on_end(self, worker: int, result: EpisodeResult) -> None: ...
 
 
 def evaluate_policy(policy: Policy, env: EnvConfig, episodes: int, split: str = "test", num_workers: int = 1,
                     workers: WorkersFactory | None = None, trained_renderer: str = "",
-                    on_mismatch: Literal["refuse", "warn"] = "refuse", blind: str = "") -> EvalResult:  # fmt: skip
+                    on_mismatch: Literal["refuse", "warn"] = "refuse", blind: str = "",
+                    recorder: Recorder | None = None) -> EvalResult:  # fmt: skip
     """Run ``episodes`` episodes of ``policy`` on the evaluation seeds ``EVAL_SEED + k`` (the same episodes for
     every policy, checkpoint and run); lost episodes are rerun with the next seeds.
 
@@ -113,6 +144,7 @@ def evaluate_policy(policy: Policy, env: EnvConfig, episodes: int, split: str = 
         blind: "" or the phases ("fixation", "grasp", "both") in which the policy sees another scene's images
             (:func:`apr.train.rollout.run_round`). Blind rounds pair episodes EVAL_SEED + 2j with EVAL_SEED + 2j + 1,
             whatever the number of workers (at least 2 are opened), so ``episodes`` is rounded up to even.
+        recorder: sees every episode's observations, as in training (nothing learns from them here).
     """
     if episodes < 1:
         raise ValueError(f"episodes must be at least 1, got {episodes}")
@@ -136,7 +168,7 @@ def evaluate_policy(policy: Policy, env: EnvConfig, episodes: int, split: str = 
             count = max(min(len(pool), episodes - len(done)) // pair * pair, pair)
             seeds = list(range(next_seed, next_seed + count))
             next_seed += count
-            for result in run_round(pool, seeds, policy, env.dof, env.learned_fixation, blind=blind):
+            for result in run_round(pool, seeds, policy, env.dof, env.learned_fixation, recorder, blind=blind):
                 if result.lost:
                     lost += 1
                 else:
@@ -146,18 +178,37 @@ def evaluate_policy(policy: Policy, env: EnvConfig, episodes: int, split: str = 
     return EvalResult(
         split=split, episodes=len(done), successes=successes, success_rate=successes / len(done), ci_low=low,
         ci_high=high, attempts=sum(r.attempted for r in done), lost=lost, renderer=renderer, blind=blind,
-        fixation=fixation_statistics(done) if env.learned_fixation else {},
+        fixation=fixation_statistics(done) if env.learned_fixation else {}, episode_ends=episode_end_statistics(done),
         outcomes=[_outcome(r, env.learned_fixation) for r in done],
     )  # fmt: skip
 
 
 def _outcome(result: EpisodeResult, learned_fixation: bool) -> dict:
     outcome = {"seed": result.seed, "grasp_steps": result.grasp_steps, "attempted": result.attempted,
-               "success": result.success}  # fmt: skip
+               "success": result.success, "tip_heights": [round(z, 4) for z in result.tip_heights],
+               "tip_distances": [round(d, 4) for d in result.tip_distances]}  # fmt: skip
     if learned_fixation and result.fixation_point is not None:
         outcome["fixation_point"] = [round(float(x), 4) for x in result.fixation_point]
         outcome["fixation_object_distance"] = round(result.fixation_object_distance, 4)
     return outcome
+
+
+def episode_end_statistics(results: list[EpisodeResult]) -> dict[str, float]:
+    """How episodes ended: ``at_limit`` (how many reached the 15-step limit without an attempt) and its share of
+    the episodes, and for those the median height of the tool tip above the grasp trigger and its median distance
+    to the fixation point (cm) at the end; ``final_tip_distance_cm``: that median distance over every episode, at
+    its last step (an attempt's: where the grasp started). {} without episodes."""
+    ended = [r for r in results if r.tip_heights]
+    if not ended:
+        return {}
+    limit = [r for r in ended if not r.attempted]
+    centimetres = lambda values: round(100 * float(np.median(values)), 2) if values else None  # noqa: E731
+    return {
+        "episodes": len(ended), "at_limit": len(limit), "at_limit_share": round(len(limit) / len(ended), 4),
+        "at_limit_height_above_trigger_cm": centimetres([r.tip_heights[-1] - GRASP.grasp_height for r in limit]),
+        "at_limit_tip_distance_cm": centimetres([r.tip_distances[-1] for r in limit]),
+        "final_tip_distance_cm": centimetres([r.tip_distances[-1] for r in ended]),
+    }  # fmt: skip
 
 
 UNIFORM_POINTS_PER_EPISODE = 100

@@ -28,6 +28,8 @@ class ReplaySpec:
     fixation_dim: int = 3
     """3 where the observations hold a fixation point (learned fixation, ``reveal_target``), else 0."""
     fixation_action_dim: int = 3
+    steps_left: bool = False
+    """The observations hold the steps left (the environments' v1)."""
     max_objects: int = 5
     """Object centres stored per fixation sample (the scene at the fixation action; padded with NaN)."""
 
@@ -41,6 +43,7 @@ class FrameRing:
         self.viewpoints = np.zeros((capacity, *spec.viewpoint_shape), np.float32)
         self.gripper = np.zeros((capacity, spec.gripper_dim), np.float32)
         self.fixation = np.zeros((capacity, spec.fixation_dim), np.float32)
+        self.steps_left = np.zeros(capacity if spec.steps_left else 0, np.int8)
         self.stamp = np.full(capacity, -1, np.int64)
         self.writes = 0
 
@@ -52,6 +55,8 @@ class FrameRing:
         self.gripper[slot] = observation["gripper"]
         if self.fixation.shape[1]:  # the observation has a fixation point (``ReplaySpec.fixation_dim``)
             self.fixation[slot] = observation["fixation"]
+        if len(self.steps_left):
+            self.steps_left[slot] = observation["steps_left"]
         self.stamp[slot] = self.writes
         self.writes += 1
         return slot, self.writes - 1
@@ -60,6 +65,8 @@ class FrameRing:
         batch = {"images": self.images[slots], "viewpoints": self.viewpoints[slots], "gripper": self.gripper[slots]}
         if self.fixation.shape[1]:
             batch["fixation"] = self.fixation[slots]
+        if len(self.steps_left):
+            batch["steps_left"] = self.steps_left[slots]
         return batch
 
 
@@ -98,7 +105,7 @@ class ReplayBuffer:
     def bytes_needed(capacity: int, spec: ReplaySpec) -> int:
         """Memory the buffer allocates for ``capacity`` (what ``__init__`` will take)."""
         poses = int(np.prod(spec.viewpoint_shape)) + spec.gripper_dim + spec.fixation_dim
-        frame = int(np.prod(spec.image_shape)) + 4 * poses + 8
+        frame = int(np.prod(spec.image_shape)) + 4 * poses + 8 + spec.steps_left
         transition = 8 * 4 + 4 * (spec.grasp_action_dim + 2)
         fixation = 16 + 4 * (spec.fixation_action_dim + 1 + 3 * spec.max_objects)
         return (capacity + capacity // 2) * frame + capacity * transition + max(capacity // 4, 1) * fixation

@@ -9,7 +9,7 @@ round boundary continues exactly.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
@@ -51,6 +51,11 @@ class EpisodeResult:
     """m from the fixation point to the nearest object centre at the fixation action (learned fixation)."""
     object_centres: np.ndarray | None = None
     """(N, 3) the objects' centres when the fixation point was chosen (the simulator's, for statistics)."""
+    tip_heights: list[float] = field(default_factory=list)
+    """m: the tool tip's z after each grasp step's motion (an attempt's: before the fingers close)."""
+    tip_distances: list[float] = field(default_factory=list)
+    """m: the tool tip's distance to the fixation point (the target's centre with ``target="env"``) after each grasp
+    step's motion (the simulator's, for statistics)."""
 
 
 class Recorder(Protocol):
@@ -65,8 +70,9 @@ class Recorder(Protocol):
     def on_end(self, worker: int, result: EpisodeResult) -> None: ...
 
 
-MODEL_KEYS = ("images", "viewpoints", "gripper", "fixation")
-"""The observation entries the model reads (``fixation`` only where the environment's observation has it)."""
+MODEL_KEYS = ("images", "viewpoints", "gripper", "fixation", "steps_left")
+"""The observation entries the model reads (``fixation`` and ``steps_left`` only where the environment's observation
+has them)."""
 
 
 BLIND_PHASES = {"": (), "fixation": ("fixation",), "grasp": ("grasp",), "both": ("fixation", "grasp")}
@@ -175,6 +181,8 @@ def run_round(
             result, info = results[worker], answer.info
             result.grasp_steps = info["grasp_steps"]
             result.reach_return += info["reach_reward"]
+            result.tip_heights.append(float(info["tool_tip"][2]))
+            result.tip_distances.append(float(info["tip_fixation_distance"]))
             if answer.terminated or answer.truncated:
                 result.attempted, result.success = info["grasp_attempted"], info["grasp_success"]
                 result.fixation_point = info["fixation_point"]

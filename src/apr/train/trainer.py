@@ -160,6 +160,7 @@ class Trainer:
             image_shape=(3, config.model.image_size, config.model.image_size, config.env.image_channels),
             viewpoint_shape=(3, config.model.viewpoint_dim), gripper_dim=config.model.gripper_dim,
             grasp_action_dim=config.env.dof, fixation_dim=3 if config.env.observes_fixation else 0,
+            steps_left=config.env.observes_steps_left,
         )  # fmt: skip
         need = ReplayBuffer.bytes_needed(config.replay_capacity, spec)
         have = available_memory_bytes()
@@ -457,8 +458,11 @@ class Trainer:
         path = self.run_dir / "eval" / f"eval_{self.progress.grasps:08d}.json"
         path.write_text(json.dumps(result, indent=2))
         interval = f"95% CI {result['ci_low']:.1%}-{result['ci_high']:.1%}"
+        gqn = result["gqn"]
+        predicted = (f"; GQN's prediction error {gqn['prediction_mse']:.4f}, the mean image's "
+                     f"{gqn['mean_image_mse']:.4f}") if gqn else ""  # fmt: skip
         tqdm.write(f"eval at {self.progress.grasps} grasps: {result['success_rate']:.1%} ({interval}, "
-                   f"{result['episodes']} episodes)")  # fmt: skip
+                   f"{result['episodes']} episodes, {result['attempts']} attempts{predicted})")  # fmt: skip
         return result
 
     def _log(self, evaluation: dict | None) -> None:
@@ -486,6 +490,8 @@ class Trainer:
         for name, value in row.items():
             if value != "" and name != "grasps":
                 self.writer.add_scalar(f"run/{name}", float(value), progress.grasps)
+        for name, value in (evaluation or {}).get("gqn", {}).items():  # the representation, against grasps
+            self.writer.add_scalar(f"eval/gqn_{name}", float(value), progress.grasps)
         for name, total in progress.loss_sums.items():
             self.writer.add_scalar(name, total / max(progress.loss_counts.get(name, progress.loss_count), 1),
                                    progress.grasps)  # fmt: skip

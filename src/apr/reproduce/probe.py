@@ -1,0 +1,372 @@
+"""What a representation knows: readouts fitted on the frozen r of an encoder (the linear-probe evaluation).
+
+``apr probe SOURCE`` encodes the first views of training-split and held-out scenes (r = r1 + r2 of views 0 and 1, as
+the policies see them), fits small readouts on r to labels the simulator gives, and reports their held-out median
+errors in cm beside the constant predictor (the training labels' mean) and an upper bound: the same encoder
+architecture and head, fresh, trained end to end on the same labels from the images. A probe may read the
+simulator; a policy may not. Where localisation is lost shows in the gaps: constant to linear (what r holds in
+plain sight), linear to head (what a head the size of the policy's can read), head to end to end (what the views
+and the architecture allow that this encoder's training did not learn).
+
+Labels (m):
+- ``nearest_object_xy``: the xy of the object nearest the bin centre (every kind of scene).
+- ``target_xy``: the xy of the environment's target (environment-target scenes, whose views fixate it).
+- ``tip_target_offset``: the tool tip's offset from the target, xyz, after a few random grasp steps
+  (environment-target scenes): what a grasp policy needs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated
+
+import gymnasium as gym
+import numpy as np
+import torch
+import tyro
+from torch import nn
+from tqdm import tqdm
+
+import apr  # noqa: F401  (registers the environments)
+from apr.envs.config import SCENE
+from apr.model.agent import APRAgent, Observation
+from apr.model.config import ModelConfig
+from apr.model.encoder import TowerEncoder, encode_scene, images_to_float
+from apr.model.heads import SpatialSoftArgmax, conv_block
+from apr.reproduce.policies import load_policy, untrained_snapshot
+from apr.train.config import ConfigError, EnvConfig
+
+LABELS = ("nearest_object_xy", "target_xy", "tip_target_offset")
+READOUTS = ("linear", "head", "spatial", "end_to_end")
+PROBE_SEED = 3_000_000_000
+"""Probe scenes use the seeds PROBE_SEED + k (training split) and PROBE_SEED + 500_000 + k (held out): apart from
+the training runs' episodes and the evaluations' (EVAL_SEED + k), the same for every probed encoder."""
+HELDOUT_OFFSET = 500_000
+MAX_RANDOM_STEPS = 6
+"""Environment-target scenes are taken after 0 to this many random grasp steps, so the tool tip varies."""
+UNTRAINED_PREFIX = "untrained:"
+
+
+@dataclass
+class ProbeArgs:
+    """What a representation knows: readouts on the frozen r of a run's encoder, against the constant predictor and
+    an upper bound trained end to end; writes results/probe/NAME/probe.json."""
+
+    source: Annotated[str, tyro.conf.Positional]
+    """A run folder, a checkpoint file, or ``untrained:PRESET`` (fresh weights of a preset)."""
+    name: str = ""
+    """The folder under ``--out``; default: the run's folder name, or ``untrained-PRESET``."""
+    out: Path = Path("results/probe")
+    """Parent folder of the probes' folders."""
+    train_scenes: int = 500
+    """Training-split scenes the readouts are fitted on."""
+    heldout_scenes: int = 100
+    """Held-out scenes (the 100 test objects, exactly 5 in the tray) the errors are measured on."""
+    labels: tuple[str, ...] = ()
+    """Labels to probe (``nearest_object_xy``, ``target_xy``, ``tip_target_offset``); default: every one the
+    scenes have."""
+    readouts: tuple[str, ...] = READOUTS
+    """``linear`` (ridge regression on r, its strength chosen by 5-fold cross-validation), ``head`` (a conv block
+    the size of the policy heads' and a linear layer, on r), ``spatial`` (the same with spatial soft-argmax
+    keypoints before the linear layer) and ``end_to_end`` (the upper bound)."""
+    steps: int = 1500
+    """Adam steps of the ``head`` and ``end_to_end`` readouts (batch 32)."""
+    seed: int = 0
+    """Seeds the readouts' initialisation and batches (the scenes have their own seeds)."""
+    cache: Path = Path("runs/probe-scenes")
+    """Rendered scenes are kept here (a few hundred MB at most), keyed by environment, split, count and seed."""
+
+
+@dataclass
+class Scenes:
+    """Observations of scenes and their labels."""
+
+    images: np.ndarray
+    """uint8 (S, 3, 64, 64, C)."""
+    viewpoints: np.ndarray
+    """float32 (S, 3, 6)."""
+    gripper: np.ndarray
+    """float32 (S, 9)."""
+    labels: dict[str, np.ndarray] = field(default_factory=dict)
+    """Each float32 (S, D), metres."""
+
+    def observation(self, index: np.ndarray | slice = slice(None)) -> Observation:
+        return Observation(torch.from_numpy(self.images[index]), torch.from_numpy(self.viewpoints[index]),
+                           torch.from_numpy(self.gripper[index]))  # fmt: skip
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+
+# ------------------------------------------------------------------------------------------------ scenes
+def scene_labels(info: dict, target: str) -> dict[str, np.ndarray]:
+    """The labels of one scene from the env's ``info`` (the simulator's view)."""
+    centres = np.asarray(info["object_centres"], np.float64)
+    nearest = centres[np.linalg.norm(centres[:, :2] - np.array(SCENE.bin_centre)[:2], axis=1).argmin()]
+    labels = {"nearest_object_xy": nearest[:2]}
+    if target == "env":
+        labels["target_xy"] = np.asarray(info["fixation_point"], np.float64)[:2]
+        labels["tip_target_offset"] = np.asarray(info["tool_tip"], np.float64) - info["fixation_point"]
+    return {name: value.astype(np.float32) for name, value in labels.items()}
+
+
+def collect_scenes(env_config: EnvConfig, split: str, count: int, first_seed: int) -> Scenes:
+    """``count`` scenes of ``split``: the reset views (a learned fixation's look at the bin centre) or, with the
+    environment's target, the views after 0 to ``MAX_RANDOM_STEPS`` random grasp steps that stay above the grasp
+    height. Every draw comes from the scene's seed."""
+    env = gym.make(env_config.env_id, **env_config.make_kwargs(split))
+    images, viewpoints, gripper, labels = [], [], [], []
+    seed = first_seed
+    try:
+        with tqdm(total=count, desc=f"probe scenes ({split})", unit="scene", leave=False) as bar:
+            while len(images) < count:
+                observation, info = env.reset(seed=seed)
+                rng = np.random.default_rng(seed)
+                seed += 1
+                if env_config.target == "env":
+                    observation, info = _random_steps(env, observation, info, rng, env_config.dof)
+                    if observation is None:
+                        continue
+                images.append(observation["images"])
+                viewpoints.append(observation["viewpoints"])
+                gripper.append(observation["gripper"])
+                labels.append(scene_labels(info, env_config.target))
+                bar.update()
+    finally:
+        env.close()
+    return Scenes(np.stack(images), np.stack(viewpoints).astype(np.float32), np.stack(gripper).astype(np.float32),
+                  {name: np.stack([scene[name] for scene in labels]) for name in labels[0]})  # fmt: skip
+
+
+def _random_steps(env, observation, info, rng: np.random.Generator, dof: int):
+    for _ in range(int(rng.integers(0, MAX_RANDOM_STEPS + 1))):
+        action = rng.uniform(-1.0, 1.0, dof).astype(np.float32)
+        action[2] = rng.uniform(-0.6, 0.3)
+        observation, _, terminated, truncated, info = env.step(action)
+        if terminated or truncated:  # a grasp started: no scene to probe
+            return None, None
+    return observation, info
+
+
+def cached_scenes(env_config: EnvConfig, split: str, count: int, first_seed: int, cache: Path) -> Scenes:
+    """:func:`collect_scenes`, kept in ``cache`` (an interrupted or damaged file is rendered again)."""
+    key = json.dumps([dataclasses.asdict(env_config), split, count, first_seed], sort_keys=True)
+    path = cache / f"{split}_{count}_{hashlib.sha256(key.encode()).hexdigest()[:16]}.npz"
+    if path.exists():
+        try:
+            with np.load(path) as data:
+                return Scenes(data["images"], data["viewpoints"], data["gripper"],
+                              {name.removeprefix("label_"): data[name] for name in data.files
+                               if name.startswith("label_")})  # fmt: skip
+        except (OSError, ValueError, KeyError) as error:
+            tqdm.write(f"{path} is unreadable ({error}): rendering its scenes again")
+    scenes = collect_scenes(env_config, split, count, first_seed)
+    cache.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(path.name + ".tmp")
+    with open(temporary, "wb") as file:
+        np.savez(file, images=scenes.images, viewpoints=scenes.viewpoints, gripper=scenes.gripper,
+                 **{f"label_{name}": value for name, value in scenes.labels.items()})  # fmt: skip
+    temporary.replace(path)
+    return scenes
+
+
+# ---------------------------------------------------------------------------------------------- readouts
+@torch.no_grad()
+def encode(agent: APRAgent, scenes: Scenes, batch: int = 64) -> torch.Tensor:
+    """r of views 0 and 1 of every scene, as the policies see it: (S, R, 16, 16), fp32, on the CPU."""
+    parts = []
+    for start in range(0, len(scenes), batch):
+        observation = scenes.observation(slice(start, start + batch)).to(agent.device)
+        parts.append(agent._scene(observation, agent._first_two(len(observation)), with_grad=0).float().cpu())
+    return torch.cat(parts)
+
+
+def fit_linear(features: torch.Tensor, labels: torch.Tensor, heldout: torch.Tensor, folds: int = 5) -> torch.Tensor:
+    """Ridge regression of ``labels`` (N, D) on the flattened ``features`` (N, ...), its strength chosen by
+    ``folds``-fold cross-validation on the training scenes; returns the predictions for ``heldout`` (M, D).
+    The dual form (an N x N system) keeps it exact and cheap when features outnumber scenes."""
+    x, x_heldout = features.flatten(1).double(), heldout.flatten(1).double()
+    mean, scale = x.mean(0), x.std(0).clamp_min(1e-8)
+    x, x_heldout = (x - mean) / scale, (x_heldout - mean) / scale
+    y = labels.double()
+    y_mean = y.mean(0)
+
+    def solve(train_x: torch.Tensor, train_y: torch.Tensor, strength: float) -> torch.Tensor:
+        gram = train_x @ train_x.T
+        dual = torch.linalg.solve(gram + strength * torch.eye(len(gram), dtype=gram.dtype), train_y - y_mean)
+        return train_x.T @ dual  # (F, D)
+
+    strengths = [x.shape[1] * factor for factor in (1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0)]
+    fold = torch.arange(len(x)) % folds
+    errors = []
+    for strength in strengths:
+        error = 0.0
+        for k in range(folds):
+            weights = solve(x[fold != k], y[fold != k], strength)
+            error += float(((x[fold == k] @ weights + y_mean - y[fold == k]) ** 2).sum())
+        errors.append(error)
+    weights = solve(x, y, strengths[int(np.argmin(errors))])
+    return (x_heldout @ weights + y_mean).float()
+
+
+class Readout(nn.Module):
+    """A head the size of the policies': a conv block (3x3 kernels) and one linear layer, r -> (D,). ``spatial``:
+    the conv block's maps become keypoints (:class:`SpatialSoftArgmax`) before the linear layer."""
+
+    def __init__(self, channels_in: int, channels: tuple[int, ...], grid: int, out: int, spatial: bool = False):
+        super().__init__()
+        if spatial:
+            self.trunk = nn.Sequential(*conv_block(channels_in, channels)[:-1], SpatialSoftArgmax())
+            self.out = nn.Linear(2 * channels[-1], out)
+        else:
+            self.trunk = conv_block(channels_in, channels)
+            self.out = nn.Linear(channels[-1] * grid * grid, out)
+
+    def forward(self, r: torch.Tensor) -> torch.Tensor:
+        return self.out(self.trunk(r))
+
+
+def train_regressor(predict: Callable[[torch.Tensor], torch.Tensor], parameters: list[nn.Parameter],
+                    inputs: int, labels: torch.Tensor, steps: int, seed: int) -> None:  # fmt: skip
+    """Adam on the mean squared error of standardised ``labels`` (N, D); ``predict`` maps sample indices (B,) to
+    standardised predictions (B, D)."""
+    generator = torch.Generator().manual_seed(seed)
+    optimizer = torch.optim.Adam(parameters, lr=1e-3, weight_decay=1e-4)
+    for _ in range(steps):
+        index = torch.randint(inputs, (32,), generator=generator)
+        loss = ((predict(index) - labels[index]) ** 2).mean()
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+
+
+def fit_head(features: torch.Tensor, labels: torch.Tensor, heldout: torch.Tensor, channels: tuple[int, ...],
+             steps: int, seed: int, spatial: bool = False) -> torch.Tensor:  # fmt: skip
+    """A :class:`Readout` trained on frozen ``features`` (N, R, G, G); predictions for ``heldout`` (M, D)."""
+    torch.manual_seed(seed)
+    mean, scale = labels.mean(0), labels.std(0).clamp_min(1e-6)
+    readout = Readout(features.shape[1], channels, features.shape[-1], labels.shape[1], spatial)
+    train_regressor(lambda index: readout(features[index]), list(readout.parameters()), len(features),
+                    (labels - mean) / scale, steps, seed)  # fmt: skip
+    with torch.no_grad():
+        return readout(heldout) * scale + mean
+
+
+def fit_end_to_end(config: ModelConfig, train: Scenes, labels: torch.Tensor, heldout: Scenes, steps: int,
+                   seed: int) -> torch.Tensor:  # fmt: skip
+    """The upper bound: a fresh encoder of ``config``'s architecture and a :class:`Readout`, trained together from
+    the images and poses of views 0 and 1 to ``labels``; predictions for ``heldout`` (M, D)."""
+    torch.manual_seed(seed)
+    encoder = TowerEncoder(config.image_channels, config.pose_dim, config.encoder_channels,
+                           config.encoder_narrow_channels, config.representation_channels)  # fmt: skip
+    readout = Readout(config.representation_channels, tuple(config.head_channels), config.image_size // 4,
+                      labels.shape[1])  # fmt: skip
+    mean, scale = labels.mean(0), labels.std(0).clamp_min(1e-6)
+
+    def predict(scenes: Scenes, index: torch.Tensor | slice) -> torch.Tensor:
+        observation = scenes.observation(index if isinstance(index, slice) else index.numpy())
+        images = images_to_float(observation.images[:, :2]).contiguous()
+        return readout(encode_scene(encoder, images, observation.poses()[:, :2]))
+
+    parameters = [*encoder.parameters(), *readout.parameters()]
+    train_regressor(lambda index: predict(train, index), parameters, len(train), (labels - mean) / scale, steps,
+                    seed)  # fmt: skip
+    with torch.no_grad():
+        parts = [predict(heldout, slice(start, start + 64)) for start in range(0, len(heldout), 64)]
+        return torch.cat(parts) * scale + mean
+
+
+def median_cm(predictions: torch.Tensor, labels: torch.Tensor) -> float:
+    """Median Euclidean error over scenes, in cm."""
+    return round(100 * float((predictions - labels).norm(dim=1).median()), 2)
+
+
+# ----------------------------------------------------------------------------------------------- the probe
+def probe_entries(agent: APRAgent, train: Scenes, heldout: Scenes, checkpoint: str, labels: tuple[str, ...],
+                  readouts: tuple[str, ...], steps: int, seed: int) -> list[dict]:  # fmt: skip
+    """Every (label, readout) of the probe of ``agent``'s encoder: the entries of probe.json."""
+    r_train, r_heldout = encode(agent, train), encode(agent, heldout)
+    entries = []
+    for label in labels:
+        y_train, y_heldout = torch.from_numpy(train.labels[label]), torch.from_numpy(heldout.labels[label])
+        constant = median_cm(y_train.mean(0).expand_as(y_heldout), y_heldout)
+        for readout in readouts:
+            tqdm.write(f"probe: {label}, {readout} readout")
+            if readout == "linear":
+                predicted = fit_linear(r_train, y_train, r_heldout)
+            elif readout in ("head", "spatial"):
+                predicted = fit_head(r_train, y_train, r_heldout, tuple(agent.config.head_channels), steps, seed,
+                                     spatial=readout == "spatial")  # fmt: skip
+            else:
+                predicted = fit_end_to_end(agent.config, train, y_train, heldout, steps, seed)
+            entries.append({"checkpoint": checkpoint, "label": label, "readout": readout,
+                            "heldout_median_cm": median_cm(predicted, y_heldout), "constant_median_cm": constant,
+                            "train_scenes": len(train), "heldout_scenes": len(heldout)})  # fmt: skip
+    return entries
+
+
+def problems(args: ProbeArgs) -> list[str]:
+    """What makes the arguments unusable, one sentence each (empty: none)."""
+    found = []
+    for name in ("train_scenes", "heldout_scenes", "steps"):
+        if getattr(args, name) < 1:
+            found.append(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
+    found += [f"--labels: unknown label {label!r}; the labels are {', '.join(LABELS)}" for label in args.labels
+              if label not in LABELS]  # fmt: skip
+    found += [f"--readouts: unknown readout {readout!r}; the readouts are {', '.join(READOUTS)}"
+              for readout in args.readouts if readout not in READOUTS]  # fmt: skip
+    if not args.source.startswith(UNTRAINED_PREFIX) and not Path(args.source).exists():
+        found.append(f"{args.source} does not exist (a run folder, a checkpoint, or untrained:PRESET)")
+    return found
+
+
+def run(args: ProbeArgs) -> Path:
+    """``apr probe``: probe the encoder of ``args.source``; write (or update) ``OUT/NAME/probe.json``."""
+    found = problems(args)
+    if found:
+        raise ConfigError("\n".join(found))
+    if args.source.startswith(UNTRAINED_PREFIX):
+        preset_name = args.source.removeprefix(UNTRAINED_PREFIX)
+        try:
+            snapshot = untrained_snapshot(preset_name)
+        except ValueError as error:
+            raise ConfigError(str(error)) from None
+        name = args.name or f"untrained-{preset_name}"
+    else:
+        snapshot = load_policy(Path(args.source))
+        source = Path(args.source)
+        name = args.name or (source.name if source.is_dir() else source.parent.parent.name)
+    env = dataclasses.replace(snapshot.config.env, renderer="tiny")
+    available = LABELS if env.target == "env" else ("nearest_object_xy",)
+    labels = args.labels or available
+    unavailable = [label for label in labels if label not in available]
+    if unavailable:
+        raise ConfigError(f"--labels {' '.join(unavailable)}: these scenes (target={env.target!r}) have only "
+                          f"{', '.join(available)}")  # fmt: skip
+    train = cached_scenes(env, "train", args.train_scenes, PROBE_SEED, args.cache)
+    heldout = cached_scenes(env, "test", args.heldout_scenes, PROBE_SEED + HELDOUT_OFFSET, args.cache)
+    entries = probe_entries(snapshot.agent, train, heldout, args.source, labels, args.readouts, args.steps,
+                            args.seed)  # fmt: skip
+    path = args.out / name / "probe.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    kept = []
+    if path.exists():
+        try:
+            kept = json.loads(path.read_text())
+        except (OSError, ValueError) as error:
+            tqdm.write(f"{path} is unreadable ({error}): writing it anew")
+    new_keys = {(e["checkpoint"], e["label"], e["readout"]) for e in entries}
+    kept = [e for e in kept if (e.get("checkpoint"), e.get("label"), e.get("readout")) not in new_keys]
+    temporary = path.with_name(path.name + ".tmp")
+    temporary.write_text(json.dumps(kept + entries, indent=2) + "\n")
+    temporary.replace(path)
+    for entry in entries:
+        print(f"{entry['label']:>18} {entry['readout']:>10}: {entry['heldout_median_cm']:6.2f} cm held out "
+              f"(constant {entry['constant_median_cm']:.2f} cm)")  # fmt: skip
+    print(f"wrote {path}")
+    return path

@@ -1,0 +1,95 @@
+"""``apr probe``: readouts that recover a known answer, and only a real one; the probe.json it writes."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from apr.model.agent import APRAgent
+from apr.model.config import ModelConfig
+from apr.model.heads import SpatialSoftArgmax
+from apr.reproduce.probe import ProbeArgs, Readout, fit_head, fit_linear, median_cm, run
+from apr.train.config import ConfigError
+
+
+def synthetic(count: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Features (count, 4, 4, 4) and labels (count, 2) that are a fixed linear map of them plus a little noise."""
+    generator = torch.Generator().manual_seed(seed)
+    features = torch.randn(count, 4, 4, 4, generator=generator)
+    weights = torch.randn(64, 2, generator=torch.Generator().manual_seed(99)) * 0.01
+    return features, features.flatten(1) @ weights + 0.001 * torch.randn(count, 2, generator=generator)
+
+
+def test_the_linear_probe_recovers_a_linear_answer_and_not_shuffled_labels() -> None:
+    features, labels = synthetic(300, seed=0)
+    heldout, heldout_labels = synthetic(100, seed=1)
+    constant = median_cm(labels.mean(0).expand_as(heldout_labels), heldout_labels)
+    recovered = median_cm(fit_linear(features, labels, heldout), heldout_labels)
+    shuffled = median_cm(fit_linear(features, labels[torch.randperm(300)], heldout), heldout_labels)
+    assert recovered < 0.1 * constant, (recovered, constant)
+    assert shuffled > 0.8 * constant, (shuffled, constant)
+
+
+def test_the_head_readout_learns_the_answer_and_has_the_labels_shape() -> None:
+    features, labels = synthetic(300, seed=0)
+    heldout, heldout_labels = synthetic(50, seed=1)
+    predicted = fit_head(features, labels, heldout, channels=(8, 8), steps=400, seed=0)
+    assert predicted.shape == (50, 2)
+    constant = median_cm(labels.mean(0).expand_as(heldout_labels), heldout_labels)
+    assert median_cm(predicted, heldout_labels) < 0.6 * constant
+    assert Readout(16, (16, 8, 8), 16, 3)(torch.zeros(5, 16, 16, 16)).shape == (5, 3)
+
+
+def test_bad_arguments_are_refused_before_any_work(tmp_path) -> None:
+    args = ProbeArgs(source=str(tmp_path / "missing"), labels=("where",), readouts=("cubic",), train_scenes=0,
+                     out=tmp_path / "out", cache=tmp_path / "cache")  # fmt: skip
+    with pytest.raises(ConfigError) as refused:
+        run(args)
+    for part in ("--train-scenes", "unknown label 'where'", "unknown readout 'cubic'", "does not exist"):
+        assert part in str(refused.value)
+    assert not (tmp_path / "out").exists() and not (tmp_path / "cache").exists()
+
+
+def test_a_probe_of_an_untrained_encoder_writes_its_entries(tmp_path) -> None:
+    torch.set_num_threads(1)
+    args = ProbeArgs(source="untrained:smoke", train_scenes=10, heldout_scenes=4, readouts=("linear", "head"),
+                     steps=5, out=tmp_path / "out", cache=tmp_path / "cache")  # fmt: skip
+    path = run(args)
+    entries = json.loads(path.read_text())
+    assert path == tmp_path / "out" / "untrained-smoke" / "probe.json"
+    assert [(e["label"], e["readout"]) for e in entries] == [("nearest_object_xy", "linear"),
+                                                              ("nearest_object_xy", "head")]  # fmt: skip
+    for entry in entries:
+        assert entry["checkpoint"] == "untrained:smoke" and (entry["train_scenes"], entry["heldout_scenes"]) == (10, 4)
+        assert entry["heldout_median_cm"] >= 0 and entry["constant_median_cm"] > 0
+    run(args)  # again, from the cached scenes: the same entries replace the old ones
+    assert len(json.loads(path.read_text())) == 2
+    with pytest.raises(ConfigError, match="have only nearest_object_xy"):
+        run(ProbeArgs(source="untrained:smoke", labels=("target_xy",), out=tmp_path / "out", cache=tmp_path / "c"))
+
+
+def test_the_gqn_measure_gives_the_mean_image_the_views_variance() -> None:
+    """View 2 black in two scenes and white in two: the mean image is grey, its squared error 0.25 per value."""
+    images = np.zeros((4, 3, 64, 64, 3), np.uint8)
+    images[1::2, 2] = 255
+    observations = {"images": images, "viewpoints": np.zeros((4, 3, 6), np.float32),
+                    "gripper": np.zeros((4, 9), np.float32)}  # fmt: skip
+    measure = APRAgent(ModelConfig.tiny(image_channels=3, grasp_action_dim=4)).gqn_measure(observations)
+    assert measure["mean_image_mse"] == pytest.approx(0.25) and measure["views"] == 4
+    assert 0.0 <= measure["prediction_mse"] <= 1.0 and 0.0 <= measure["reconstruction_mse"] <= 1.0
+    assert measure["kl"] >= 0.0
+    no_generator = APRAgent(ModelConfig.tiny(image_channels=3, grasp_action_dim=4, representation=False))
+    assert no_generator.gqn_measure(observations) == {}
+
+
+def test_the_spatial_readout_finds_a_one_hot_feature_at_its_cell() -> None:
+    features = torch.zeros(1, 2, 16, 16)
+    features[0, 0, 3, 10] = 50.0  # row 3, column 10
+    features[0, 1, 15, 0] = 50.0  # the last row, the first column
+    step = 2.0 / 15
+    expected = torch.tensor([[-1 + 10 * step, -1 + 3 * step, -1.0, 1.0]])
+    torch.testing.assert_close(SpatialSoftArgmax()(features), expected, atol=1e-4, rtol=0)
+    assert Readout(16, (16, 8, 8), 16, 3, spatial=True)(torch.zeros(5, 16, 16, 16)).shape == (5, 3)
