@@ -78,6 +78,8 @@ class ProbeArgs:
     """Adam steps of the ``head`` and ``end_to_end`` readouts (batch 32)."""
     seed: int = 0
     """Seeds the readouts' initialisation and batches (the scenes have their own seeds)."""
+    threads: int = 1
+    """CPU threads for torch (small tensors: one is fastest, and far faster than two beside other work)."""
     cache: Path = Path("runs/probe-scenes")
     """Rendered scenes are kept here (a few hundred MB at most), keyed by environment, split, count and seed."""
 
@@ -313,7 +315,7 @@ def probe_entries(agent: APRAgent, train: Scenes, heldout: Scenes, checkpoint: s
 def problems(args: ProbeArgs) -> list[str]:
     """What makes the arguments unusable, one sentence each (empty: none)."""
     found = []
-    for name in ("train_scenes", "heldout_scenes", "steps"):
+    for name in ("train_scenes", "heldout_scenes", "steps", "threads"):
         if getattr(args, name) < 1:
             found.append(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
     found += [f"--labels: unknown label {label!r}; the labels are {', '.join(LABELS)}" for label in args.labels
@@ -330,6 +332,7 @@ def run(args: ProbeArgs) -> Path:
     found = problems(args)
     if found:
         raise ConfigError("\n".join(found))
+    torch.set_num_threads(args.threads)
     if args.source.startswith(UNTRAINED_PREFIX):
         preset_name = args.source.removeprefix(UNTRAINED_PREFIX)
         try:
