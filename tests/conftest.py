@@ -15,6 +15,7 @@ from collections.abc import Callable, Iterator
 import gymnasium
 import numpy as np
 import pytest
+import torch
 
 import apr  # noqa: F401  (registers the environments)
 
@@ -34,6 +35,15 @@ def _factory() -> tuple[MakeEnv, list[gymnasium.Env]]:
         return env
 
     return make, made
+
+
+@pytest.fixture
+def one_thread() -> Iterator[None]:
+    """Small tensors: one thread is fastest, and much faster than two beside other work on a 2-core machine."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
 
 
 @pytest.fixture

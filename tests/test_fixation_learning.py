@@ -5,7 +5,6 @@ saw. A fixation policy that ignored its images could do no better than the best 
 from __future__ import annotations
 
 import numpy as np
-import pytest
 import torch
 
 from apr.model.agent import APRAgent, FixationBatch, GraspBatch, Observation, fixation_points, proximity_reward
@@ -34,15 +33,6 @@ def synthetic_scenes(count: int, rng: np.random.Generator) -> tuple[Observation,
 
 def median_distance(points: torch.Tensor, centres: torch.Tensor) -> float:
     return float((points[:, None] - centres).norm(dim=-1).amin(dim=1).median())
-
-
-@pytest.fixture
-def one_thread():
-    """Small tensors: one thread is fastest, and much faster than two beside other work on a 2-core machine."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 
 def test_the_fixation_bandit_learns_to_look_at_the_object(one_thread) -> None:

@@ -53,8 +53,8 @@ def test_bad_arguments_are_refused_before_any_work(tmp_path) -> None:
     assert not (tmp_path / "out").exists() and not (tmp_path / "cache").exists()
 
 
-def test_a_probe_of_an_untrained_encoder_writes_its_entries(tmp_path) -> None:
-    torch.set_num_threads(1)
+def test_a_probe_of_an_untrained_encoder_writes_its_entries(tmp_path, one_thread) -> None:
+    """``apr probe`` sets torch's threads (one by default); the fixture gives the other tests theirs back."""
     args = ProbeArgs(source="untrained:smoke", train_scenes=10, heldout_scenes=4, readouts=("linear", "head"),
                      steps=5, out=tmp_path / "out", cache=tmp_path / "cache")  # fmt: skip
     path = run(args)

@@ -138,14 +138,6 @@ def deterministic_attempt_step(agent: APRAgent) -> int | None:
     return None
 
 
-@pytest.fixture
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 def test_signs_of_life_with_the_limit_in_the_task_the_policy_attempts_before_the_limit(one_thread) -> None:
     """Through the real learner. This task does not separate the two targets: with the earlier one (the limit
     bootstrapped, no clock) the same training also attempted at the first step (checked once), and with an entropy
