@@ -43,12 +43,12 @@ class SpatialSoftArgmax(nn.Module):
         self.log_temperature = nn.Parameter(torch.zeros(()))
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:
-        batch, channels, height, width = features.shape
-        weights = torch.softmax(features.flatten(2) / self.log_temperature.exp(), dim=-1)  # (B, C, H * W)
+        height, width = features.shape[-2:]
+        weights = torch.softmax(features.flatten(2) / self.log_temperature.exp(), dim=-1).unflatten(-1, (height, width))
         rows = torch.linspace(-1.0, 1.0, height, device=features.device, dtype=weights.dtype)
         columns = torch.linspace(-1.0, 1.0, width, device=features.device, dtype=weights.dtype)
-        x = (weights.unflatten(-1, (height, width)).sum(dim=2) * columns).sum(-1)  # (B, C)
-        y = (weights.unflatten(-1, (height, width)).sum(dim=3) * rows).sum(-1)
+        x = (weights.sum(dim=2) * columns).sum(-1)  # (B, C): the column marginal's mean
+        y = (weights.sum(dim=3) * rows).sum(-1)  # the row marginal's mean
         return torch.stack([x, y], dim=-1).flatten(1)
 
 

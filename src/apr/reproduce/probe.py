@@ -44,8 +44,8 @@ from apr.train.config import ConfigError, EnvConfig
 LABELS = ("nearest_object_xy", "target_xy", "tip_target_offset")
 READOUTS = ("linear", "head", "spatial", "end_to_end")
 PROBE_SEED = 3_000_000_000
-"""Probe scenes use the seeds PROBE_SEED + k (training split) and PROBE_SEED + 500_000 + k (held out): apart from
-the training runs' episodes and the evaluations' (EVAL_SEED + k), the same for every probed encoder."""
+"""Probe scenes use the seeds PROBE_SEED + k (training split) and PROBE_SEED + HELDOUT_OFFSET + k (held out): apart
+from the training runs' episodes and the evaluations' (EVAL_SEED + k), the same for every probed encoder."""
 HELDOUT_OFFSET = 500_000
 MAX_RANDOM_STEPS = 6
 """Environment-target scenes are taken after 0 to this many random grasp steps, so the tool tip varies."""
@@ -98,8 +98,8 @@ class Scenes:
     """Each float32 (S, D), metres."""
 
     def observation(self, index: np.ndarray | slice = slice(None)) -> Observation:
-        return Observation(torch.from_numpy(self.images[index]), torch.from_numpy(self.viewpoints[index]),
-                           torch.from_numpy(self.gripper[index]))  # fmt: skip
+        return Observation.from_env({"images": self.images[index], "viewpoints": self.viewpoints[index],
+                                     "gripper": self.gripper[index]})  # fmt: skip
 
     def __len__(self) -> int:
         return len(self.images)
@@ -119,8 +119,8 @@ def scene_labels(info: dict, target: str) -> dict[str, np.ndarray]:
 
 def collect_scenes(env_config: EnvConfig, split: str, count: int, first_seed: int) -> Scenes:
     """``count`` scenes of ``split``: the reset views (a learned fixation's look at the bin centre) or, with the
-    environment's target, the views after 0 to ``MAX_RANDOM_STEPS`` random grasp steps that stay above the grasp
-    height. Every draw comes from the scene's seed."""
+    environment's target, the views after 0 to ``MAX_RANDOM_STEPS`` random grasp steps (mostly level; a scene
+    whose steps started a grasp is passed over for the next seed). Every draw comes from the scene's seed."""
     env = gym.make(env_config.env_id, **env_config.make_kwargs(split))
     images, viewpoints, gripper, labels = [], [], [], []
     seed = first_seed

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
+import gymnasium
 import tyro
 
 from apr.envs.grasp_env import render_size_problem
@@ -106,8 +107,9 @@ class EnvConfig:
 
     @property
     def observes_steps_left(self) -> bool:
-        """The observations hold the grasp steps left: the environments' v1, whose 15-step limit is part of the task."""
-        return not self.env_id.endswith("-v0")
+        """The observations hold the grasp steps left: the environments' v1, whose 15-step limit is part of the task
+        (``limit_in_task``, as ``apr`` registers each version)."""
+        return bool(gymnasium.spec(self.env_id).kwargs["limit_in_task"])
 
     @property
     def image_channels(self) -> int:

@@ -104,22 +104,25 @@ def evaluate(agent: APRAgent, env: EnvConfig, episodes: int, split: str = "test"
     def policy(observations, phase):
         return agent.act(observations, deterministic=True, policy=phase)
 
-    first_views = FirstViews()
+    first_views = None if blind else FirstViews(GQN_MEASURE_SCENES)  # blind images are not the scene's own
     result = evaluate_policy(policy, env, episodes, split, num_workers, workers, trained_renderer, on_mismatch,
                              blind, recorder=first_views)  # fmt: skip
-    if not blind and first_views.observations:
-        result.gqn = agent.gqn_measure(stack(first_views.observations[:GQN_MEASURE_SCENES]))
+    if first_views is not None and first_views.observations:
+        result.gqn = agent.gqn_measure(stack(first_views.observations))
     return result
 
 
 class FirstViews:
-    """A recorder (:class:`apr.train.rollout.Recorder`) that keeps each episode's first observation."""
+    """A recorder (:class:`apr.train.rollout.Recorder`) that keeps the first observation of the first ``limit``
+    episodes."""
 
-    def __init__(self) -> None:
+    def __init__(self, limit: int) -> None:
+        self.limit = limit
         self.observations: list[dict] = []
 
     def on_reset(self, worker: int, observation: dict) -> None:
-        self.observations.append(observation)
+        if len(self.observations) < self.limit:
+            self.observations.append(observation)
 
     def on_fixation(self, worker: int, action: np.ndarray, result: object) -> None: ...
 
