@@ -190,6 +190,7 @@ def test_train_split_draws_training_objects(make_env) -> None:
         (ACTIVE, "foveation", "x", "('logpolar', 'resize')"),
         (ACTIVE, "split", "x", "('train', 'test')"),
         (ACTIVE, "renderer", "x", "('auto', 'egl', 'tiny')"),
+        (ACTIVE, "initial_views", "random", "('drawn', 'fixed')"),
         (PASSIVE, "dof", 3, "(4, 6)"),
         (PASSIVE, "split", "val", "('train', 'test')"),
         (PASSIVE, "renderer", "opengl", "('auto', 'egl', 'tiny')"),
@@ -459,3 +460,19 @@ def test_a_learned_fixation_observes_the_point_it_chose_and_info_the_objects(dic
     np.testing.assert_allclose(obs["fixation"], info["fixation_point"], atol=1e-6)
     nearest = np.linalg.norm(info["object_centres"] - info["fixation_point"], axis=1).min()
     assert info["fixation_object_distance"] == pytest.approx(nearest, abs=1e-6)
+
+
+def test_fixed_initial_views_are_the_same_in_every_episode_and_the_later_views_are_drawn(make_env) -> None:
+    fixed = make_env(ACTIVE, dof=4, target="learned", foveation="resize", render_size=64, initial_views="fixed")
+    drawn = make_env(ACTIVE, dof=4, target="learned", foveation="resize", render_size=64)
+    action = {"fixation": np.zeros(3, np.float32), "grasp": np.zeros(4, np.float32)}
+    views = {}
+    for seed in (1, 2):
+        for name, env in (("fixed", fixed), ("drawn", drawn)):
+            observation, info = env.reset(seed=seed)
+            assert env.unwrapped.world.head.camera().sight_error(info["fixation_point"]) < 0.02
+            views[name, seed] = observation["viewpoints"], env.step(action)[0]["viewpoints"]
+    np.testing.assert_array_equal(views["fixed", 1][0], views["fixed", 2][0])  # the same three viewpoints at reset
+    assert len({tuple(view) for view in views["fixed", 1][0].round(3)}) == 3  # three different ones
+    assert not np.allclose(views["fixed", 1][1], views["fixed", 2][1])  # after the fixation: drawn
+    assert not np.allclose(views["drawn", 1][0], views["drawn", 2][0])

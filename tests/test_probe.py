@@ -11,6 +11,7 @@ import torch
 from apr.model.agent import APRAgent
 from apr.model.config import ModelConfig
 from apr.model.heads import SpatialSoftArgmax
+from apr.reproduce import probe
 from apr.reproduce.probe import ProbeArgs, Readout, fit_head, fit_linear, median_cm, run
 from apr.train.config import ConfigError
 
@@ -60,14 +61,15 @@ def test_a_probe_of_an_untrained_encoder_writes_its_entries(tmp_path, one_thread
     path = run(args)
     entries = json.loads(path.read_text())
     assert path == tmp_path / "out" / "untrained-smoke" / "probe.json"
-    assert [(e["label"], e["readout"]) for e in entries] == [("nearest_object_xy", "linear"),
-                                                              ("nearest_object_xy", "head")]  # fmt: skip
+    assert [(e["label"], e["readout"]) for e in entries] == [(label, readout)
+                                                              for label in ("nearest_object_xy", "object_map")
+                                                              for readout in ("linear", "head")]  # fmt: skip
     for entry in entries:
         assert entry["checkpoint"] == "untrained:smoke" and (entry["train_scenes"], entry["heldout_scenes"]) == (10, 4)
         assert entry["heldout_median_cm"] >= 0 and entry["constant_median_cm"] > 0
     run(args)  # again, from the cached scenes: the same entries replace the old ones
-    assert len(json.loads(path.read_text())) == 2
-    with pytest.raises(ConfigError, match="have only nearest_object_xy"):
+    assert len(json.loads(path.read_text())) == 4
+    with pytest.raises(ConfigError, match="have only nearest_object_xy, object_map"):
         run(ProbeArgs(source="untrained:smoke", labels=("target_xy",), out=tmp_path / "out", cache=tmp_path / "c"))
 
 
@@ -93,3 +95,19 @@ def test_the_spatial_readout_finds_a_one_hot_feature_at_its_cell() -> None:
     expected = torch.tensor([[-1 + 10 * step, -1 + 3 * step, -1.0, 1.0]])
     torch.testing.assert_close(SpatialSoftArgmax()(features), expected, atol=1e-4, rtol=0)
     assert Readout(16, (16, 8, 8), 16, 3, spatial=True)(torch.zeros(5, 16, 16, 16)).shape == (5, 3)
+
+
+def test_the_object_map_peaks_at_each_object_and_a_look_is_scored_by_the_nearest_one() -> None:
+    points = probe.map_points()
+    objects = points[[5, 77]] + np.array([0.001, 0.0])  # two objects 1 mm beside two of the map's points
+    values = probe.object_map(objects)
+    assert values.shape == (probe.MAP_GRID**2,) and values[5] == pytest.approx(1 - 0.001 / probe.MAP_RADIUS)
+    assert values[77] == pytest.approx(values[5]) and values.min() == 0.0
+    padded = np.full((2, 8, 2), np.nan, np.float32)
+    padded[:, :2] = objects
+    looks = torch.zeros(2, probe.MAP_GRID**2)
+    looks[0, 77] = 1.0  # looks at the second object: 0.1 cm
+    far = int(np.linalg.norm(points[:, None] - objects, axis=-1).min(1).argmax())
+    looks[1, far] = 1.0
+    farthest_cm = 100 * np.linalg.norm(points[far] - objects, axis=1).min()
+    assert probe.look_error_cm(looks, padded) == pytest.approx((0.1 + farthest_cm) / 2, abs=0.01)

@@ -57,11 +57,16 @@ PAPER_SAYS = {
 
 # ------------------------------------------------------------------------------------------- fabricated runs
 def fabricate_run(
-    root: Path, preset_name: str, seed: int, evaluations: list[tuple[int, int, int]], finished: bool = True
+    root: Path,
+    preset_name: str,
+    seed: int,
+    evaluations: list[tuple[int, int, int]],
+    finished: bool = True,
+    at_limit: int = 0,
 ) -> Path:
     """A run folder without training: config.json, and per (grasps, successes, episodes) an eval file and a
     metrics.csv row (with a row without evaluation before each); ``finished``: the last one is the run's final
-    evaluation."""
+    evaluation; ``at_limit`` episodes of each evaluation ended at the limit without an attempt."""
     run_dir = root / f"{preset_name}__s{seed}"
     (run_dir / "eval").mkdir(parents=True)
     (run_dir / "config.json").write_text(dataclasses.replace(preset(preset_name), seed=seed).to_json())
@@ -75,7 +80,7 @@ def fabricate_run(
             "success_rate": successes / episodes,
             "ci_low": low,
             "ci_high": high,
-            "attempts": episodes,
+            "attempts": episodes - at_limit,
             "lost": 0,
             "outcomes": [],
             "grasps": grasps,
@@ -114,7 +119,9 @@ def test_table1_shows_exactly_the_numbers_of_the_final_eval_files(tmp_path: Path
         for seed in range(2):
             successes, episodes = 40 + 7 * number + 11 * seed, 100 + 20 * seed
             # an earlier evaluation with other numbers: the table must take the one with the most grasps
-            fabricate_run(tmp_path, name, seed, [(500, 3, 100), (1000 + 10 * number, successes, episodes)])
+            fabricate_run(
+                tmp_path, name, seed, [(500, 3, 100), (1000 + 10 * number, successes, episodes)], at_limit=seed + 1
+            )
             finals[name].append((successes, episodes))
 
     markdown = render_table1(build_table1([tmp_path]))
@@ -136,10 +143,11 @@ def test_table1_shows_exactly_the_numbers_of_the_final_eval_files(tmp_path: Path
         rates = [s / n for s, n in seeds]
         assert rows[name][3] == f"{100 * statistics.mean(rates):.1f}% ± {100 * statistics.stdev(rates):.1f} pts"
         assert rows[name][4] == "-"  # no blind evaluation
-        assert rows[name][5] == "2 (s0, s1)"
-        assert rows[name][7] == str(total_episodes)
-    assert rows["active-target"][6] == "1,000"  # the grasps of the final evaluations
-    assert rows["active-learned-4d"][6] == "1,050"
+        assert rows[name][5] == f"{total_episodes - 3}/{total_episodes} ({300 / total_episodes:.1f}% at the limit)"
+        assert rows[name][6] == "2 (s0, s1)"
+        assert rows[name][8] == str(total_episodes)
+    assert rows["active-target"][7] == "1,000"  # the grasps of the final evaluations
+    assert rows["active-learned-4d"][7] == "1,050"
     assert "3/100" not in markdown.split("## Runs")[0]  # the earlier evaluations are not reported
     assert "eval_00001000.json" in markdown  # each run's final evaluation file is named
 
@@ -302,7 +310,7 @@ def test_table1_command_trains_writes_the_table_then_skips_the_finished_run(tabl
     assert rows["smoke"][2] == (
         f"{100 * rate:.1f}% ({result['successes']}/{result['episodes']}) [{100 * low:.1f}%, {100 * high:.1f}%]"
     )
-    assert rows["smoke"][6] == "2"
+    assert rows["smoke"][7] == "2"
     assert len(run_checkpoints(run_dir)) == 2
     blind = json.loads((run_dir / "eval" / "blind_both_00000002.json").read_text())  # the final policy, blind
     assert blind["blind"] == "both" and blind["episodes"] == 2 and blind["grasps"] == 2  # paired: rounded up to even

@@ -17,6 +17,7 @@ from apr.model.agent import APRAgent, GraspBatch, Observation
 from apr.model.config import ModelConfig
 from apr.train.config import ConfigError, preset
 from apr.train.replay import ReplayBuffer, ReplaySpec
+from apr.train.rollout import random_policy
 from apr.train.trainer import _Recorder
 from apr.train.workers import StepResult
 
@@ -144,3 +145,30 @@ def test_signs_of_life_with_the_limit_in_the_task_the_policy_attempts_before_the
     temperature starting at 0.1 and attempts that succeed one time in five neither attempted within 500 updates.
     What separates them is measured on the grasping runs (docs/benchmarks.md, "The 15-step limit")."""
     assert deterministic_attempt_step(train_on_the_deferral_task(limit_in_task=True)) is not None
+
+
+def warmup_attempts(make_env, down_probability: float, episodes: int = 3) -> int:
+    """Episodes of the 6-DoF env-target task in which the warm-up policy started a grasp."""
+    env = make_env(ACTIVE, target="env", foveation="resize", render_size=64)
+    policy = random_policy(6, np.random.default_rng(0), down_probability)
+    attempts = 0
+    for seed in range(episodes):
+        observation, _ = env.reset(seed=seed)
+        for _ in range(15):
+            action = policy({"images": observation["images"][None]}, "grasp")[0]
+            observation, _, terminated, _, info = env.step(action)
+            if terminated:
+                attempts += bool(info["grasp_attempted"])
+                break
+    return attempts
+
+
+def test_the_warm_up_moves_down_as_the_benchmark_s_random_policy_and_so_attempts(make_env) -> None:
+    """Uniform steps wander around the start height for 15 steps; the downward bias reaches the trigger."""
+    policy = random_policy(6, np.random.default_rng(1), down_probability=0.9)
+    grasp = policy({"images": np.zeros((4000, 1))}, "grasp")
+    assert np.mean(grasp[:, 2] == -1.0) == pytest.approx(0.9, abs=0.02)
+    assert np.abs(grasp[:, [0, 1, 3, 4, 5]].mean()) < 0.02 and grasp.min() >= -1 and grasp.max() <= 1
+    assert not np.any(policy({"images": np.zeros((4000, 1))}, "fixation") == -1.0)  # the fixation stays uniform
+    assert warmup_attempts(make_env, down_probability=0.0) == 0
+    assert warmup_attempts(make_env, down_probability=0.9) == 3

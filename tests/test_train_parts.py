@@ -179,6 +179,16 @@ def test_a_render_size_the_foveations_cannot_sample_is_refused_by_its_flag(rende
     ]
 
 
+def test_fixed_initial_views_reach_the_active_env_and_the_passive_one_refuses_them():
+    config = preset("cpu-active-learned-4d")
+    assert "initial_views" not in config.env.make_kwargs("train")  # drawn: what every saved run had
+    config.env.initial_views = "fixed"
+    assert config.env.make_kwargs("train")["initial_views"] == "fixed" and config.problems() == []
+    passive = preset("cpu-passive-target")
+    passive.env.initial_views = "fixed"
+    assert passive.problems() == ["--env.initial-views fixed needs the head: the passive model's cameras are static"]
+
+
 def test_a_replay_that_does_not_fit_is_refused(monkeypatch, tmp_path: Path):
     from apr.train import trainer
 

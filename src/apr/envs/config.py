@@ -138,6 +138,10 @@ class HeadSpec:
     fov_deg: float = 60.0
     ik_iterations: int = 4
     """Refinement passes of the IK (each resets the joints to the last solution and solves again)."""
+    fixed_initial_views: tuple[tuple[float, float, float], ...] = ((-0.35, 0.85, 0.385), (0.35, 0.85, 0.385),
+                                                                   (0.0, 0.85, 0.385))  # fmt: skip
+    """ours: (yaw, pitch, distance) of views 0, 1 and 2 at reset with ``initial_views="fixed"``: the middle of the
+    ranges' pitch and distance, yaw half-way to either end, so views 0 and 1 see the tray from two fixed sides."""
     max_pose_tries: int = 8
     """Viewpoints drawn until one is reached with its line of sight within ``max_sight_error``."""
     max_sight_error: float = 0.01

@@ -12,13 +12,16 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from apr.envs.config import CAMERA, GRASP, PHYSICS, REWARD
+from apr.envs.config import CAMERA, GRASP, HEAD, PHYSICS, REWARD
 from apr.envs.task import GraspTask
 from apr.envs.world import GraspWorld, passive_cameras
 from apr.foveation import FOVEATIONS, foveate
 
 DOFS = (4, 6)
 FIXATION_PHASE, GRASP_PHASE = 0, 1
+INITIAL_VIEWS = ("drawn", "fixed")
+"""How the head's views at reset are placed: drawn around the point as at every step, or from the fixed viewpoints
+of ``HEAD.fixed_initial_views`` (ours)."""
 
 
 class GraspEnv(gym.Env):
@@ -232,6 +235,9 @@ class ActiveGraspEnv(GraspEnv):
       "learned" (the agent picks the fixation point: see Episode structure).
     - ``foveation``: "logpolar" or "resize" (the "w/o log-polar" ablation).
     - ``split``: "train" (at most 5 of the 900 training objects) or "test" (exactly 5 of the 100 held out).
+    - ``initial_views``: "drawn" (the views at reset are drawn around the point, as at every step) or "fixed"
+      (the views at reset come from the fixed viewpoints of ``HEAD.fixed_initial_views``, the same in every
+      episode: with a learned fixation, the views it chooses from; the later steps' views are drawn).
     - ``renderer``: "tiny" (pybullet's TinyRenderer, on the CPU; any number of environments in one process),
       "egl" (pybullet's EGL plugin: about 1.5 times the steps per second on a CPU, through Mesa's llvmpipe; one
       EGL environment per process) or "auto" (EGL if its plugin loads, else TinyRenderer). The two renderers' images
@@ -304,17 +310,31 @@ class ActiveGraspEnv(GraspEnv):
     def __init__(self, dof: int = 6, target: str = "env", foveation: str = "logpolar", split: str = "train",
                  renderer: str = "tiny", render_mode: str | None = None,
                  reach_scale: float = REWARD.reach_scale, render_size: int = CAMERA.render_size,
-                 reveal_target: bool = False, limit_in_task: bool = True):  # fmt: skip
+                 reveal_target: bool = False, limit_in_task: bool = True, initial_views: str = "drawn"):  # fmt: skip
+        _check_choice("initial_views", initial_views, INITIAL_VIEWS)
+        self.initial_views = initial_views
+        self._at_reset = False
         super().__init__(dof=dof, target=target, foveation=foveation, split=split, renderer=renderer,
                          render_mode=render_mode, with_head=True, reach_scale=reach_scale,
                          render_size=render_size, reveal_target=reveal_target,
                          limit_in_task=limit_in_task)  # fmt: skip
 
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        self._at_reset = True
+        try:
+            return super().reset(seed=seed, options=options)
+        finally:
+            self._at_reset = False
+
     def _render_views(self):
         head = self.world.head
+        fixed = self.initial_views == "fixed" and self._at_reset
         rgbs, segmentations, viewpoints = [], [], []
-        for _ in range(CAMERA.views_per_step):
-            camera, joints = head.look_at(self.fixation_point, self.np_random)
+        for view in range(CAMERA.views_per_step):
+            if fixed:
+                camera, joints = head.look_from(self.fixation_point, *HEAD.fixed_initial_views[view])
+            else:
+                camera, joints = head.look_at(self.fixation_point, self.np_random)
             rgb, segmentation = self.world.render(camera, segmentation=self.with_mask, from_head=True)
             rgbs.append(rgb)
             segmentations.append(segmentation)

@@ -81,6 +81,11 @@ class Head:
         self._set_joints(best[1])
         return self.camera(), self.joint_angles()
 
+    def look_from(self, point: np.ndarray, yaw: float, pitch: float, distance: float) -> tuple[Camera, np.ndarray]:
+        """Move the head to the viewpoint (yaw, pitch, distance) around ``point``, no draw; as :meth:`look_at`."""
+        self._solve(np.asarray(point, dtype=np.float64), yaw, pitch, distance)
+        return self.camera(), self.joint_angles()
+
     def camera(self) -> Camera:
         """The camera at the head's current pose: it looks along the flange normal, image up is the flange's -x."""
         state = self.client.getLinkState(self.uid, self.spec.camera_link, computeForwardKinematics=True)

@@ -13,6 +13,10 @@ Labels (m):
 - ``target_xy``: the xy of the environment's target (environment-target scenes, whose views fixate it).
 - ``tip_target_offset``: the tool tip's offset from the target, xyz, after a few random grasp steps
   (environment-target scenes): what a grasp policy needs.
+- ``object_map``: every object at once, as a map over the drop area: at each of ``MAP_GRID`` x ``MAP_GRID`` points,
+  ``1 - min(d, MAP_RADIUS) / MAP_RADIUS``, d the xy distance to the nearest object centre (every kind of scene). Its
+  error is that of a look: the xy distance from the predicted map's highest point to the nearest object, the
+  question a learned fixation answers (the constant: the training maps' mean, whose highest point is one place).
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import gymnasium as gym
 import numpy as np
@@ -33,15 +37,17 @@ from torch import nn
 from tqdm import tqdm
 
 import apr  # noqa: F401  (registers the environments)
-from apr.envs.config import SCENE
+from apr.envs.config import OBJECTS, SCENE
 from apr.model.agent import APRAgent, Observation
 from apr.model.config import ModelConfig
 from apr.model.encoder import TowerEncoder, encode_scene, images_to_float
 from apr.model.heads import SpatialSoftArgmax, conv_block
 from apr.reproduce.policies import load_policy, untrained_snapshot
-from apr.train.config import ConfigError, EnvConfig
+from apr.train.config import ConfigError, EnvConfig, is_passive
 
-LABELS = ("nearest_object_xy", "target_xy", "tip_target_offset")
+LABELS = ("nearest_object_xy", "object_map", "target_xy", "tip_target_offset")
+SCENE_LABELS = ("nearest_object_xy", "object_map")
+"""The labels of every kind of scene; the environment's target adds the rest."""
 READOUTS = ("linear", "head", "spatial", "end_to_end")
 PROBE_SEED = 3_000_000_000
 """Probe scenes use the seeds PROBE_SEED + k (training split) and PROBE_SEED + HELDOUT_OFFSET + k (held out): apart
@@ -50,6 +56,26 @@ HELDOUT_OFFSET = 500_000
 MAX_RANDOM_STEPS = 6
 """Environment-target scenes are taken after 0 to this many random grasp steps, so the tool tip varies."""
 UNTRAINED_PREFIX = "untrained:"
+MAP_GRID = 12
+"""Points per side of ``object_map``: 2.8 cm apart over the drop area."""
+MAP_RADIUS = 0.06
+"""m: beyond this xy distance from every object centre a point of ``object_map`` is 0."""
+MAX_OBJECTS = 8
+"""Object centres kept per scene (NaN rows pad fewer): for the errors of ``object_map``."""
+
+
+def map_points() -> np.ndarray:
+    """The xy (m) of ``object_map``'s points, (MAP_GRID ** 2, 2), row by row, over the objects' drop area."""
+    margin = 0.02
+    x = np.linspace(OBJECTS.drop_x[0] - margin, sum(OBJECTS.drop_x) + margin, MAP_GRID)
+    y = np.linspace(-OBJECTS.drop_y_width / 2 - margin, OBJECTS.drop_y_width / 2 + margin, MAP_GRID)
+    return np.stack(np.meshgrid(x, y, indexing="ij"), -1).reshape(-1, 2)
+
+
+def object_map(object_xy: np.ndarray) -> np.ndarray:
+    """``object_map`` of one scene from its objects' xy (N, 2): (MAP_GRID ** 2,) in [0, 1]."""
+    distance = np.linalg.norm(map_points()[:, None] - object_xy[None], axis=-1).min(axis=1)
+    return 1.0 - np.minimum(distance, MAP_RADIUS) / MAP_RADIUS
 
 
 @dataclass
@@ -80,6 +106,9 @@ class ProbeArgs:
     """Seeds the readouts' initialisation and batches (the scenes have their own seeds)."""
     threads: int = 1
     """CPU threads for torch (small tensors: one is fastest, and far faster than two beside other work)."""
+    initial_views: Literal["", "drawn", "fixed"] = ""
+    """The head's views at reset in the probe's scenes (``--env.initial-views`` of training); default: the
+    source's."""
     cache: Path = Path("runs/probe-scenes")
     """Rendered scenes are kept here (a few hundred MB at most), keyed by environment, split, count and seed."""
 
@@ -95,7 +124,9 @@ class Scenes:
     gripper: np.ndarray
     """float32 (S, 9)."""
     labels: dict[str, np.ndarray] = field(default_factory=dict)
-    """Each float32 (S, D), metres."""
+    """Each float32 (S, D): metres, or the values of ``object_map``."""
+    object_xy: np.ndarray | None = None
+    """float32 (S, MAX_OBJECTS, 2): the objects' centres, NaN rows for fewer (the simulator's; for errors only)."""
 
     def observation(self, index: np.ndarray | slice = slice(None)) -> Observation:
         return Observation.from_env({"images": self.images[index], "viewpoints": self.viewpoints[index],
@@ -110,7 +141,7 @@ def scene_labels(info: dict, target: str) -> dict[str, np.ndarray]:
     """The labels of one scene from the env's ``info`` (the simulator's view)."""
     centres = np.asarray(info["object_centres"], np.float64)
     nearest = centres[np.linalg.norm(centres[:, :2] - np.array(SCENE.bin_centre)[:2], axis=1).argmin()]
-    labels = {"nearest_object_xy": nearest[:2]}
+    labels = {"nearest_object_xy": nearest[:2], "object_map": object_map(centres[:, :2])}
     if target == "env":
         labels["target_xy"] = np.asarray(info["fixation_point"], np.float64)[:2]
         labels["tip_target_offset"] = np.asarray(info["tool_tip"], np.float64) - info["fixation_point"]
@@ -122,7 +153,7 @@ def collect_scenes(env_config: EnvConfig, split: str, count: int, first_seed: in
     environment's target, the views after 0 to ``MAX_RANDOM_STEPS`` random grasp steps (mostly level; a scene
     whose steps started a grasp is passed over for the next seed). Every draw comes from the scene's seed."""
     env = gym.make(env_config.env_id, **env_config.make_kwargs(split))
-    images, viewpoints, gripper, labels = [], [], [], []
+    images, viewpoints, gripper, labels, object_xy = [], [], [], [], []
     seed = first_seed
     try:
         with tqdm(total=count, desc=f"probe scenes ({split})", unit="scene", leave=False) as bar:
@@ -138,11 +169,19 @@ def collect_scenes(env_config: EnvConfig, split: str, count: int, first_seed: in
                 viewpoints.append(observation["viewpoints"])
                 gripper.append(observation["gripper"])
                 labels.append(scene_labels(info, env_config.target))
+                object_xy.append(padded_object_xy(info))
                 bar.update()
     finally:
         env.close()
     return Scenes(np.stack(images), np.stack(viewpoints).astype(np.float32), np.stack(gripper).astype(np.float32),
-                  {name: np.stack([scene[name] for scene in labels]) for name in labels[0]})  # fmt: skip
+                  {name: np.stack([scene[name] for scene in labels]) for name in labels[0]},
+                  np.stack(object_xy))  # fmt: skip
+
+
+def padded_object_xy(info: dict) -> np.ndarray:
+    """The scene's object centres' xy, (MAX_OBJECTS, 2) float32, NaN rows where it has fewer."""
+    centres = np.asarray(info["object_centres"], np.float32)[:MAX_OBJECTS, :2]
+    return np.concatenate([centres, np.full((MAX_OBJECTS - len(centres), 2), np.nan, np.float32)])
 
 
 def _random_steps(env, observation, info, rng: np.random.Generator, dof: int):
@@ -164,7 +203,7 @@ def cached_scenes(env_config: EnvConfig, split: str, count: int, first_seed: int
             with np.load(path) as data:
                 return Scenes(data["images"], data["viewpoints"], data["gripper"],
                               {name.removeprefix("label_"): data[name] for name in data.files
-                               if name.startswith("label_")})  # fmt: skip
+                               if name.startswith("label_")}, data["object_xy"])  # fmt: skip
         except (OSError, ValueError, KeyError) as error:
             tqdm.write(f"{path} is unreadable ({error}): rendering its scenes again")
     scenes = collect_scenes(env_config, split, count, first_seed)
@@ -172,6 +211,7 @@ def cached_scenes(env_config: EnvConfig, split: str, count: int, first_seed: int
     temporary = path.with_name(path.name + ".tmp")
     with open(temporary, "wb") as file:
         np.savez(file, images=scenes.images, viewpoints=scenes.viewpoints, gripper=scenes.gripper,
+                 object_xy=scenes.object_xy,
                  **{f"label_{name}": value for name, value in scenes.labels.items()})  # fmt: skip
     temporary.replace(path)
     return scenes
@@ -288,6 +328,21 @@ def median_cm(predictions: torch.Tensor, labels: torch.Tensor) -> float:
     return round(100 * float((predictions - labels).norm(dim=1).median()), 2)
 
 
+def look_error_cm(maps: torch.Tensor, object_xy: np.ndarray) -> float:
+    """The error of predicted ``object_map``s (M, MAP_GRID ** 2): the median over scenes of the xy distance (cm)
+    from each map's highest point to the nearest of its scene's objects (``object_xy``: (M, MAX_OBJECTS, 2))."""
+    looked = map_points()[maps.argmax(dim=1).numpy()]  # (M, 2)
+    distance = np.linalg.norm(looked[:, None] - object_xy, axis=-1)  # (M, MAX_OBJECTS), NaN for padding
+    return round(100 * float(np.median(np.nanmin(distance, axis=1))), 2)
+
+
+def error_cm(label: str, predictions: torch.Tensor, labels: torch.Tensor, scenes: Scenes) -> float:
+    """A label's held-out error in cm: :func:`look_error_cm` for ``object_map``, else :func:`median_cm`."""
+    if label == "object_map":
+        return look_error_cm(predictions, scenes.object_xy)
+    return median_cm(predictions, labels)
+
+
 # ----------------------------------------------------------------------------------------------- the probe
 def probe_entries(agent: APRAgent, train: Scenes, heldout: Scenes, checkpoint: str, labels: tuple[str, ...],
                   readouts: tuple[str, ...], steps: int, seed: int) -> list[dict]:  # fmt: skip
@@ -296,7 +351,7 @@ def probe_entries(agent: APRAgent, train: Scenes, heldout: Scenes, checkpoint: s
     entries = []
     for label in labels:
         y_train, y_heldout = torch.from_numpy(train.labels[label]), torch.from_numpy(heldout.labels[label])
-        constant = median_cm(y_train.mean(0).expand_as(y_heldout), y_heldout)
+        constant = error_cm(label, y_train.mean(0).expand_as(y_heldout), y_heldout, heldout)
         for readout in readouts:
             tqdm.write(f"probe: {label}, {readout} readout")
             if readout == "linear":
@@ -307,9 +362,17 @@ def probe_entries(agent: APRAgent, train: Scenes, heldout: Scenes, checkpoint: s
             else:
                 predicted = fit_end_to_end(agent.config, train, y_train, heldout, steps, seed)
             entries.append({"checkpoint": checkpoint, "label": label, "readout": readout,
-                            "heldout_median_cm": median_cm(predicted, y_heldout), "constant_median_cm": constant,
+                            "heldout_median_cm": error_cm(label, predicted, y_heldout, heldout),
+                            "constant_median_cm": constant,
                             "train_scenes": len(train), "heldout_scenes": len(heldout)})  # fmt: skip
     return entries
+
+
+def entry_key(entry: dict) -> tuple:
+    """What one probe.json entry measured; a new entry replaces an old one with the same key (entries written before
+    ``initial_views`` was recorded had drawn views)."""
+    names = ("checkpoint", "label", "readout", "train_scenes")
+    return (*(entry.get(name) for name in names), entry.get("initial_views", "drawn"))
 
 
 def problems(args: ProbeArgs) -> list[str]:
@@ -345,7 +408,11 @@ def run(args: ProbeArgs) -> Path:
         source = Path(args.source)
         name = args.name or (source.name if source.is_dir() else source.parent.parent.name)
     env = dataclasses.replace(snapshot.config.env, renderer="tiny")
-    available = LABELS if env.target == "env" else ("nearest_object_xy",)
+    if args.initial_views:
+        if is_passive(env.env_id) and args.initial_views != "drawn":
+            raise ConfigError(f"--initial-views {args.initial_views} needs the head: {env.env_id} has static cameras")
+        env = dataclasses.replace(env, initial_views=args.initial_views)
+    available = LABELS if env.target == "env" else SCENE_LABELS
     labels = args.labels or available
     unavailable = [label for label in labels if label not in available]
     if unavailable:
@@ -355,6 +422,8 @@ def run(args: ProbeArgs) -> Path:
     heldout = cached_scenes(env, "test", args.heldout_scenes, PROBE_SEED + HELDOUT_OFFSET, args.cache)
     entries = probe_entries(snapshot.agent, train, heldout, args.source, labels, args.readouts, args.steps,
                             args.seed)  # fmt: skip
+    for entry in entries:
+        entry["initial_views"] = env.initial_views
     path = args.out / name / "probe.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     kept = []
@@ -363,8 +432,8 @@ def run(args: ProbeArgs) -> Path:
             kept = json.loads(path.read_text())
         except (OSError, ValueError) as error:
             tqdm.write(f"{path} is unreadable ({error}): writing it anew")
-    new_keys = {(e["checkpoint"], e["label"], e["readout"]) for e in entries}
-    kept = [e for e in kept if (e.get("checkpoint"), e.get("label"), e.get("readout")) not in new_keys]
+    new_keys = {entry_key(entry) for entry in entries}
+    kept = [entry for entry in kept if entry_key(entry) not in new_keys]
     temporary = path.with_name(path.name + ".tmp")
     temporary.write_text(json.dumps(kept + entries, indent=2) + "\n")
     temporary.replace(path)

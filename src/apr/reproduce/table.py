@@ -44,6 +44,12 @@ class TableRow:
         return sum(int(run.final_eval["successes"]) for run in self.runs)
 
     @property
+    def attempts(self) -> int:
+        """Final evaluation episodes that attempted a grasp; the rest ended at the 15-step limit (a lost episode is
+        rerun, so every counted episode ends one way or the other)."""
+        return sum(int(run.final_eval["attempts"]) for run in self.runs)
+
+    @property
     def pooled_rate(self) -> float | None:
         return self.successes / self.episodes if self.episodes else None
 
@@ -141,7 +147,7 @@ def _budget(name: str) -> str:
 
 def _row_cells(row: TableRow) -> list[str]:
     if not row.runs:
-        return [row.preset, row.paper, "not run", "", "", "0", "", "", _budget(row.preset)]
+        return [row.preset, row.paper, "not run", "", "", "", "0", "", "", _budget(row.preset)]
     low, high = row.pooled_interval
     pooled = (
         f"{format_percent(row.pooled_rate)} ({row.successes}/{row.episodes}) [{format_percent(low)}, "
@@ -162,11 +168,18 @@ def _row_cells(row: TableRow) -> list[str]:
         pooled,
         spread,
         blind_text,
+        attempts_text(row.attempts, row.episodes),
         f"{len(row.runs)} ({seeds})",
         grasps_text,
         str(row.episodes),
         _budget(row.preset),
     ]
+
+
+def attempts_text(attempts: int, episodes: int) -> str:
+    """``attempts/episodes (share ended at the limit)``: so that a policy that stopped trying cannot pass for one
+    that tried and missed."""
+    return f"{attempts}/{episodes} ({format_percent(1 - attempts / episodes)} at the limit)"
 
 
 def render_table1(rows: Sequence[TableRow], source: str = "") -> str:
@@ -177,6 +190,7 @@ def render_table1(rows: Sequence[TableRow], source: str = "") -> str:
         "ours: held-out success, pooled (successes/episodes) [95% CI]",
         "ours: per-seed mean ± std",
         "blind: per-seed mean",
+        "attempts (ended at the limit)",
         "seeds",
         "grasps",
         "eval episodes",
@@ -194,6 +208,8 @@ def render_table1(rows: Sequence[TableRow], source: str = "") -> str:
         "(ddof=1), in percentage points.",
         "- *blind*: the final policies given, in every phase, the images of another held-out scene (another "
         "episode of the same evaluation); what is left is what they do without seeing their own scene.",
+        "- *attempts*: final evaluation episodes, all seeds, that started a grasp; the rest ended at the 15-step "
+        "limit without one.",
         "- *grasps*: the training grasps behind each run's final evaluation (the `eval/eval_XXXXXXXX.json` with "
         "the most grasps); *full budget of the preset*: the grasps of a full run (the paper's, where it says).",
     ]
@@ -228,8 +244,9 @@ def render_table1(rows: Sequence[TableRow], source: str = "") -> str:
         "",
         "## Runs",
         "",
-        "| preset | seed | final evaluation | grasps | training minutes | successes/episodes | rate | blind |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| preset | seed | final evaluation | grasps | training minutes | successes/episodes | rate | attempts "
+        "| blind |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for row in rows:
         for run in row.runs:
@@ -241,7 +258,8 @@ def render_table1(rows: Sequence[TableRow], source: str = "") -> str:
             lines.append(
                 f"| {row.preset}{renamed} | {run.seed} | `{result['path']}` | {result['grasps']} | "
                 f"{f'{minutes:.1f}' if minutes is not None else '?'} | {result['successes']}/{result['episodes']} | "
-                f"{format_percent(result['success_rate'])} | {blind_text} |"
+                f"{format_percent(result['success_rate'])} | "
+                f"{attempts_text(int(result['attempts']), int(result['episodes']))} | {blind_text} |"
             )
     return "\n".join(lines) + "\n"
 
@@ -307,11 +325,13 @@ def table1_json(rows: Sequence[TableRow], source: str = "") -> dict:
             {
                 "preset": row.preset, "paper_row": paper_row(row.preset), "paper": row.paper,
                 "seed_mean": row.seed_mean, "seed_std": row.seed_std, "blind_mean": row.blind_mean,
+                "attempts": row.attempts, "episodes": row.episodes,
                 "seeds": [
                     {
                         "seed": run.seed, "run": run.run_dir.name, "trained_as": run.trained_as or None,
                         "successes": int(run.final_eval["successes"]), "episodes": int(run.final_eval["episodes"]),
                         "success_rate": float(run.final_eval["success_rate"]), "grasps": int(run.final_eval["grasps"]),
+                        "attempts": int(run.final_eval["attempts"]),
                         "train_minutes": run.train_minutes,
                         "blind": None if run.blind_eval is None else {
                             name: run.blind_eval[name] for name in ("blind", "successes", "episodes", "success_rate")

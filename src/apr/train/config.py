@@ -86,6 +86,11 @@ class EnvConfig:
     """Put the target's true centre, the simulator's answer, in the observation (``fixation``; env target only).
     Not the robot's knowledge and not the paper's: only the labelled ``cpu-4d`` preset and the scripted
     baseline use it."""
+    initial_views: Literal["drawn", "fixed"] = "drawn"
+    """The head's views at reset (active env only): "drawn" around the point as at every step (paper, Method A:
+    "we sample a viewpoint from a sphere centered on it"), or "fixed" (ours): the same three viewpoints in every
+    episode (``HEAD.fixed_initial_views``), so that where an object lies in the first images says where it lies on
+    the tray (docs/benchmarks.md, "What the representation knows")."""
 
     def make_kwargs(self, split: str) -> dict[str, Any]:
         """Keyword arguments of ``gymnasium.make(self.env_id, ...)`` for ``split``."""
@@ -94,6 +99,8 @@ class EnvConfig:
                                   "reveal_target": self.reveal_target}  # fmt: skip
         if not is_passive(self.env_id):
             kwargs.update(target=self.target, foveation=self.foveation)
+            if self.initial_views != "drawn":  # v0 and saved runs never had it
+                kwargs["initial_views"] = self.initial_views
         return kwargs
 
     @property
@@ -141,7 +148,13 @@ class TrainConfig:
     """The Ray cluster of ``--backend ray``: ``auto`` or ``HOST:6379``; empty = the
     ``RAY_ADDRESS`` cluster, one started on this machine with ``ray start``, or else a new one on this machine."""
     random_grasps: int = 200
-    """Warm-up episodes with uniformly random actions before the policies act (ours; SAC practice)."""
+    """Warm-up episodes with random actions before the policies act (ours; SAC practice)."""
+    warmup_down_probability: float = 0.0
+    """Chance that a warm-up grasp step moves straight down (dz = -1), the rest of its action uniform in [-1, 1]
+    (0.9: the benchmark's random policy, pybullet's ``ContinuousDownwardBiasPolicy``; Quillen et al. 2018). 0 (the
+    recipe): uniform, which never attempts a grasp from the start height; 0.9 made 64-80% of the warm-up attempt
+    and did not change ``cpu-active-target`` seed 1's held-out success at 600 grasps (docs/decisions.md,
+    "Warm-up")."""
     updates_per_step: float = 0.25
     """Learner updates per grasp step collected (the update-to-data ratio; ours, the paper does not say)."""
     replay_capacity: int = 50_000
@@ -194,6 +207,9 @@ class TrainConfig:
             problems.append(f"--env.target learned contradicts --env.env-id {self.env.env_id}: the passive model's "
                             "cameras are static, it has no fixation to learn; use --env.target env, or "
                             f"--env.env-id {ACTIVE_ENV_ID} for learned fixation")  # fmt: skip
+        if is_passive(self.env.env_id) and self.env.initial_views != "drawn":
+            problems.append(f"--env.initial-views {self.env.initial_views} needs the head: the passive model's "
+                            "cameras are static")  # fmt: skip
         if self.env.reveal_target and self.env.target == "learned":
             problems.append("--env.reveal-target needs --env.target env: a learned fixation has no target to reveal")
         if self.model.heads_see_fixation and not self.env.observes_fixation:
@@ -236,6 +252,7 @@ class TrainConfig:
         data = json.loads(text)
         model, env = data.pop("model"), data.pop("env")
         model["head_channels"] = tuple(model["head_channels"])
+        data.setdefault("warmup_down_probability", 0.0)  # saved before the field: the warm-up was uniform
         if "heads_see_fixation" not in model:  # saved before the observation rule: g came with f and f - tip ...
             model["heads_see_fixation"] = model.get("heads_see_proprioception", False)
             # ... and the observation always held f, the target's true centre with an env target
@@ -305,6 +322,8 @@ def _field_problems(config: TrainConfig) -> list[tuple[str, str]]:
         if item.name not in ("env", "model"):
             number(item.name, getattr(config, item.name), 1 if item.name in AT_LEAST_ONE else 0)
     number("env.reach_scale", config.env.reach_scale, 0.0)
+    if config.warmup_down_probability > 1:
+        found.append(("warmup_down_probability", f"must be at most 1, got {config.warmup_down_probability}"))
     render_size = render_size_problem(config.env.render_size)
     if render_size:
         found.append(("env.render_size", render_size))

@@ -20,12 +20,16 @@ Policy = Callable[[dict[str, np.ndarray], str], np.ndarray]
 """(batched observations, "grasp" or "fixation") -> actions (N, A) in [-1, 1]."""
 
 
-def random_policy(dof: int, rng: np.random.Generator) -> Policy:
-    """Uniformly random actions in [-1, 1]: ``dof`` numbers for the grasp, 3 for the fixation."""
+def random_policy(dof: int, rng: np.random.Generator, down_probability: float = 0.0) -> Policy:
+    """Random actions in [-1, 1]: ``dof`` numbers for the grasp, 3 for the fixation, uniform, except that with
+    ``down_probability`` a grasp step's dz (its third number) is -1 (the benchmark's downward bias)."""
 
     def policy(observations: dict[str, np.ndarray], phase: str) -> np.ndarray:
         size = 3 if phase == "fixation" else dof
-        return rng.uniform(-1.0, 1.0, (len(observations["images"]), size)).astype(np.float32)
+        actions = rng.uniform(-1.0, 1.0, (len(observations["images"]), size)).astype(np.float32)
+        if phase == "grasp" and down_probability > 0:
+            actions[rng.random(len(actions)) < down_probability, 2] = -1.0
+        return actions
 
     return policy
 

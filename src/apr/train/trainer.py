@@ -46,7 +46,7 @@ from apr.train.checkpoints import (
 from apr.train.config import ConfigError, TrainConfig, flag, resume_conflicts
 from apr.train.evaluation import evaluate, renderer_request
 from apr.train.replay import ReplayBuffer, ReplaySpec
-from apr.train.rollout import EpisodeResult, episode_seed, run_round
+from apr.train.rollout import EpisodeResult, episode_seed, random_policy, run_round
 from apr.train.workers import LocalWorkers, StepResult, WorkersFactory, pool_renderer, renderer_counts
 
 METRICS_COLUMNS = (
@@ -180,6 +180,7 @@ class Trainer:
         if self.agent.device.type == "cpu":  # leave the env workers their cores (docs/decisions.md)
             torch.set_num_threads(max(1, (os.cpu_count() or 1) - config.workers))
         self.rng = np.random.default_rng(config.seed)
+        self.warmup_policy = random_policy(config.env.dof, self.rng, config.warmup_down_probability)
         self.progress = Progress()
         self.renderer = ""
         """What the training images so far came from: "egl", "tiny", or "mixed" (the workers did not agree, or a
@@ -359,11 +360,9 @@ class Trainer:
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
     def _policy(self, observations: dict[str, np.ndarray], phase: str) -> np.ndarray:
-        """Uniform random actions during warm-up, then samples of the stochastic policies."""
-        batch = len(observations["images"])
+        """Random actions during warm-up (:func:`random_policy`), then samples of the stochastic policies."""
         if self.progress.grasps < self.config.random_grasps:
-            size = 3 if phase == "fixation" else self.config.env.dof
-            return self.rng.uniform(-1.0, 1.0, (batch, size)).astype(np.float32)
+            return self.warmup_policy(observations, phase)
         started = time.perf_counter()
         actions = self.agent.act(observations, deterministic=False, policy=phase)
         self.progress.act_s += time.perf_counter() - started
