@@ -43,7 +43,7 @@ from apr.model.config import ModelConfig
 from apr.model.encoder import TowerEncoder, encode_scene, images_to_float
 from apr.model.heads import SpatialSoftArgmax, conv_block
 from apr.reproduce.policies import load_policy, untrained_snapshot
-from apr.train.config import ConfigError, EnvConfig, is_passive
+from apr.train.config import ConfigError, EnvConfig
 
 LABELS = ("nearest_object_xy", "object_map", "target_xy", "tip_target_offset")
 SCENE_LABELS = ("nearest_object_xy", "object_map")
@@ -409,9 +409,9 @@ def run(args: ProbeArgs) -> Path:
         name = args.name or (source.name if source.is_dir() else source.parent.parent.name)
     env = dataclasses.replace(snapshot.config.env, renderer="tiny")
     if args.initial_views:
-        if is_passive(env.env_id) and args.initial_views != "drawn":
-            raise ConfigError(f"--initial-views {args.initial_views} needs the head: {env.env_id} has static cameras")
         env = dataclasses.replace(env, initial_views=args.initial_views)
+        if env.initial_views_problem:
+            raise ConfigError(f"--initial-views {env.initial_views_problem}")
     available = LABELS if env.target == "env" else SCENE_LABELS
     labels = args.labels or available
     unavailable = [label for label in labels if label not in available]

@@ -113,6 +113,14 @@ class EnvConfig:
         return self.learned_fixation or self.reveal_target
 
     @property
+    def initial_views_problem(self) -> str:
+        """Why ``initial_views`` cannot be had in this environment (empty: it can), for a caller to put after its
+        flag."""
+        if is_passive(self.env_id) and self.initial_views != "drawn":
+            return f"{self.initial_views} needs the head: the passive model's cameras are static"
+        return ""
+
+    @property
     def observes_steps_left(self) -> bool:
         """The observations hold the grasp steps left: the environments' v1, whose 15-step limit is part of the task
         (``limit_in_task``, as ``apr`` registers each version)."""
@@ -207,9 +215,8 @@ class TrainConfig:
             problems.append(f"--env.target learned contradicts --env.env-id {self.env.env_id}: the passive model's "
                             "cameras are static, it has no fixation to learn; use --env.target env, or "
                             f"--env.env-id {ACTIVE_ENV_ID} for learned fixation")  # fmt: skip
-        if is_passive(self.env.env_id) and self.env.initial_views != "drawn":
-            problems.append(f"--env.initial-views {self.env.initial_views} needs the head: the passive model's "
-                            "cameras are static")  # fmt: skip
+        if self.env.initial_views_problem:
+            problems.append(f"--env.initial-views {self.env.initial_views_problem}")
         if self.env.reveal_target and self.env.target == "learned":
             problems.append("--env.reveal-target needs --env.target env: a learned fixation has no target to reveal")
         if self.model.heads_see_fixation and not self.env.observes_fixation:
