@@ -82,6 +82,29 @@ def test_paper_tower_architecture() -> None:
     assert r.shape == (1, 256, 16, 16)
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_with_he_initialisation_what_the_images_hold_reaches_r(seed: int) -> None:
+    """Eight random images, one pose: the share of r's scale that varies between the images. Under PyTorch's
+    default initialisation the image passes three layers that each keep a third of its variance before the pose
+    is concatenated beside it, and r barely depends on it (measured 0.03 at these sizes, 0.01 on rendered views);
+    Kaiming-normal weights keep it (measured 0.17)."""
+    generator = torch.Generator().manual_seed(seed)
+    images = torch.rand(8, 3, 64, 64, generator=generator)
+    pose = torch.randn(1, 15, generator=generator).expand(8, -1)
+    share = {}
+    for init in ("he", "torch"):
+        torch.manual_seed(seed)
+        encoder = TowerEncoder(3, 15, 16, 8, 16, init=init)
+        with torch.no_grad():
+            r = encoder(images, pose)
+        share[init] = float(r.std(0).mean() / r.std())
+    assert share["he"] > 0.1 > 0.05 > share["torch"], share
+    convolutions = [m for m in TowerEncoder(3, 15, 16, 8, 16).modules() if isinstance(m, torch.nn.Conv2d)]
+    assert all(not m.bias.detach().any() for m in convolutions)
+    with pytest.raises(ValueError, match="init"):
+        TowerEncoder(3, 15, init="xavier")  # type: ignore[arg-type]
+
+
 @pytest.mark.parametrize("channels", [3, 4])
 @pytest.mark.parametrize("grasp_dim", [4, 6])
 def test_output_shapes(channels: int, grasp_dim: int) -> None:

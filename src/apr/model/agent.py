@@ -200,6 +200,7 @@ class APRAgent:
                 config.encoder_channels,
                 config.encoder_narrow_channels,
                 config.representation_channels,
+                config.encoder_init,
             )
             self.generator = (
                 ConvDRAWGenerator(

@@ -38,6 +38,10 @@ class ModelConfig:
     """Narrow 3x3 layers of the tower (Eslami et al. 2018: 128)."""
     representation_channels: int = 256
     """Channels of r_i at 16x16 (paper, Method B: 16x16x256)."""
+    encoder_init: Literal["he", "torch"] = "he"
+    """Initialisation of the tower's convolutions (ours; the papers do not say). "he": Kaiming-normal for ReLU and
+    zero biases (He et al. 2015). "torch": PyTorch's default, under which what the images hold reaches r at about 1%
+    of r's scale and Adam-trained heads read nothing of it (docs/decisions.md, "The encoder's initialisation")."""
 
     # --- generator: ConvDRAW (Eslami et al. 2018, supplementary section "Generator") ---
     generation_steps: int = 12

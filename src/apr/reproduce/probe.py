@@ -305,7 +305,8 @@ def fit_end_to_end(config: ModelConfig, train: Scenes, labels: torch.Tensor, hel
     the images and poses of views 0 and 1 to ``labels``; predictions for ``heldout`` (M, D)."""
     torch.manual_seed(seed)
     encoder = TowerEncoder(config.image_channels, config.pose_dim, config.encoder_channels,
-                           config.encoder_narrow_channels, config.representation_channels)  # fmt: skip
+                           config.encoder_narrow_channels, config.representation_channels,
+                           config.encoder_init)  # fmt: skip
     readout = Readout(config.representation_channels, tuple(config.head_channels), config.image_size // 4,
                       labels.shape[1])  # fmt: skip
     mean, scale = labels.mean(0), labels.std(0).clamp_min(1e-6)
@@ -370,9 +371,10 @@ def probe_entries(agent: APRAgent, train: Scenes, heldout: Scenes, checkpoint: s
 
 def entry_key(entry: dict) -> tuple:
     """What one probe.json entry measured; a new entry replaces an old one with the same key (entries written before
-    ``initial_views`` was recorded had drawn views)."""
+    ``initial_views`` and ``encoder_init`` were recorded had drawn views and PyTorch's default initialisation)."""
     names = ("checkpoint", "label", "readout", "train_scenes")
-    return (*(entry.get(name) for name in names), entry.get("initial_views", "drawn"))
+    return (*(entry.get(name) for name in names), entry.get("initial_views", "drawn"),
+            entry.get("encoder_init", "torch"))  # fmt: skip
 
 
 def problems(args: ProbeArgs) -> list[str]:
@@ -424,6 +426,7 @@ def run(args: ProbeArgs) -> Path:
                             args.seed)  # fmt: skip
     for entry in entries:
         entry["initial_views"] = env.initial_views
+        entry["encoder_init"] = snapshot.config.model.encoder_init
     path = args.out / name / "probe.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     kept = []

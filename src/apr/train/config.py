@@ -260,6 +260,7 @@ class TrainConfig:
         model, env = data.pop("model"), data.pop("env")
         model["head_channels"] = tuple(model["head_channels"])
         data.setdefault("warmup_down_probability", 0.0)  # saved before the field: the warm-up was uniform
+        model.setdefault("encoder_init", "torch")  # saved before the field: PyTorch's default initialisation
         if "heads_see_fixation" not in model:  # saved before the observation rule: g came with f and f - tip ...
             model["heads_see_fixation"] = model.get("heads_see_proprioception", False)
             # ... and the observation always held f, the target's true centre with an env target
