@@ -22,7 +22,7 @@ import torch
 from apr.cli import main
 from apr.model.agent import APRAgent
 from apr.model.config import ModelConfig
-from apr.reproduce import campaign, demo, figures, plot
+from apr.reproduce import campaign, demo, figures, plot, policies
 from apr.reproduce.campaign import Table1Args, plan_runs
 from apr.reproduce.episodes import make_env
 from apr.reproduce.orderings import Difference, Ordering, bootstrap_difference, verdict
@@ -433,6 +433,25 @@ def test_a_packaged_checkpoint_dropped_in_is_what_the_demo_runs_and_reports(run_
             f"minutes of training on the test machine; measured held-out success at those weights: "
             f"{final['successes']}/{final['episodes']}") in report  # fmt: skip
     assert iio.imread(tmp_path / "demo" / "fig5_pregrasp.png").ndim == 3
+
+
+def test_the_demo_runs_a_packaged_policy_that_follows_the_observation_rule_and_others_by_name(run_dir: Path,
+                                                                                          tmp_path: Path):  # fmt: skip
+    packaged = tmp_path / "checkpoints"
+    # "a-privileged" sorts first: by name alone the demo would run it
+    privileged = package_checkpoint(run_dir, packaged, name="a-privileged", machine="the test machine")
+    manifest = json.loads(privileged.read_text())
+    manifest["config"]["env"]["reveal_target"] = True
+    privileged.write_text(json.dumps(manifest))
+    following = package_checkpoint(run_dir, packaged, name="b-follows-the-rule", machine="the test machine")
+
+    assert not policies.follows_observation_rule(privileged) and policies.follows_observation_rule(following)
+    assert "b-follows-the-rule" in demo.choose_policy(None, packaged).label
+    assert "a-privileged" in demo.choose_policy(Path("a-privileged"), packaged).label
+    following.unlink()  # no packaged policy follows the rule: the first one, as before
+    assert "a-privileged" in demo.choose_policy(None, packaged).label
+    with pytest.raises(SystemExit, match="--checkpoint no-such-policy is neither a path nor a checkpoint packaged"):
+        demo.run(demo.DemoArgs(out=tmp_path / "demo", checkpoint=Path("no-such-policy")), packaged_dir=packaged)
 
 
 def test_a_packaged_policys_description_gives_its_blind_numbers_beside_its_success():

@@ -1,10 +1,11 @@
 """``apr demo``: the first thing to run. A policy grasps held-out objects; a short report says how it went.
 
-The policy is, in this order: ``--checkpoint PATH`` (a run folder, a training checkpoint or a packaged
-checkpoint), else the first packaged checkpoint in ``src/apr/reproduce/checkpoints/``, else an UNTRAINED agent
-of the smoke preset. apr ships one packaged checkpoint (the ``cpu-4d`` preset after 60 minutes on a 2-core
-CPU), so out of the box the demo runs it and says how it was trained and what it measured; without one it runs
-the untrained agent and says so, on the console and in the report.
+The policy is, in this order: ``--checkpoint PATH`` (a run folder, a training checkpoint, a packaged
+checkpoint, or the name of one in ``src/apr/reproduce/checkpoints/``), else the first packaged checkpoint there
+(by name) whose policy follows the observation rule, else the first packaged one, else an UNTRAINED agent of the
+smoke preset. Out of the box the demo runs the packaged policy that sees only what the robot can know and says
+how it was trained and what it measured; the privileged ``cpu-4d`` checkpoint stays available by its name;
+without any the demo runs the untrained agent and says so, on the console and in the report.
 
 The report (``OUT/report.md``) gives the success rate over the episodes with its 95% interval, each episode's
 outcome, the GIF and the figures of :mod:`apr.reproduce.figures`.
@@ -23,8 +24,10 @@ from apr.reproduce.figures import FigureSet, evaluation_episodes, make_figures, 
 from apr.reproduce.policies import (
     PACKAGED_DIR,
     PolicySnapshot,
+    follows_observation_rule,
     load_packaged,
     load_policy,
+    packaged_by_name,
     packaged_checkpoints,
     picture_renderer,
     untrained_snapshot,
@@ -42,7 +45,8 @@ class DemoArgs:
     episodes: int = 10
     """Evaluation episodes (held-out objects, exactly 5 in the tray, deterministic action)."""
     checkpoint: Path | None = None
-    """A run folder, a training checkpoint or a packaged checkpoint; default: the packaged one, if any."""
+    """A run folder, a training checkpoint, a packaged checkpoint or the name of one packaged with apr (e.g.
+    cpu-4d__s1__584grasps); default: the first packaged one that follows the observation rule, if any."""
     gif_episodes: int = 2
     """Episodes shown in the GIF (the first ones of the evaluation)."""
     renderer: Literal["trained", "auto", "egl", "tiny"] = "trained"
@@ -85,12 +89,14 @@ def untrained_notice(snapshot: PolicySnapshot, packaged_dir: Path) -> str:
 
 
 def choose_policy(checkpoint: Path | None, packaged_dir: Path = PACKAGED_DIR) -> PolicySnapshot:
-    """The given checkpoint, else the first packaged one, else an untrained agent."""
+    """The given checkpoint (a path, or a packaged checkpoint's name), else the first packaged one that follows
+    the observation rule, else the first packaged one, else an untrained agent."""
     if checkpoint is not None:
-        return load_policy(checkpoint)
+        named = None if checkpoint.exists() else packaged_by_name(str(checkpoint), packaged_dir)
+        return load_packaged(named) if named else load_policy(checkpoint)
     packaged = packaged_checkpoints(packaged_dir)
     if packaged:
-        return load_packaged(packaged[0])
+        return load_packaged(next((path for path in packaged if follows_observation_rule(path)), packaged[0]))
     return untrained_snapshot()
 
 
@@ -99,7 +105,9 @@ def run(args: DemoArgs, packaged_dir: Path = PACKAGED_DIR) -> DemoResult:
         checks.at_least("--episodes", args.episodes, 1),
         checks.at_least("--gif-episodes", args.gif_episodes, 0),
         checks.output_folder("--out", args.out),
-        f"--checkpoint {args.checkpoint} does not exist" if args.checkpoint and not args.checkpoint.exists() else None,
+        f"--checkpoint {args.checkpoint} is neither a path nor a checkpoint packaged in {packaged_dir}"
+        if args.checkpoint and not args.checkpoint.exists() and not packaged_by_name(str(args.checkpoint), packaged_dir)
+        else None,
     ])  # fmt: skip
     snapshot = choose_policy(args.checkpoint, packaged_dir)
     notice = untrained_notice(snapshot, packaged_dir)

@@ -126,6 +126,18 @@ def packaged_checkpoints(directory: Path = PACKAGED_DIR) -> list[Path]:
     return manifests
 
 
+def follows_observation_rule(manifest_path: Path) -> bool:
+    """Whether a packaged policy sees only what the robot can know: False where its training configuration hands
+    the heads the target's true centre (``reveal_target``, as ``cpu-4d`` does)."""
+    config = TrainConfig.from_json(json.dumps(json.loads(manifest_path.read_text())["config"]))
+    return not config.env.reveal_target
+
+
+def packaged_by_name(name: str, directory: Path = PACKAGED_DIR) -> Path | None:
+    """The manifest of the packaged checkpoint called ``name`` (its file name without ``.json``), or None."""
+    return next((path for path in packaged_checkpoints(directory) if path.stem == name), None)
+
+
 def load_packaged(manifest_path: Path) -> PolicySnapshot:
     """A packaged checkpoint, from its manifest (``NAME.json``) or its weights file."""
     if manifest_path.suffix != ".json":
