@@ -93,7 +93,7 @@ def choose_policy(checkpoint: Path | None, packaged_dir: Path = PACKAGED_DIR) ->
     the observation rule, else the first packaged one, else an untrained agent."""
     if checkpoint is not None:
         named = None if checkpoint.exists() else packaged_by_name(str(checkpoint), packaged_dir)
-        return load_packaged(named) if named else load_policy(checkpoint)
+        return load_policy(named or checkpoint)
     packaged = packaged_checkpoints(packaged_dir)
     if packaged:
         return load_packaged(next((path for path in packaged if follows_observation_rule(path)), packaged[0]))

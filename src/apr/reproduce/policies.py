@@ -129,8 +129,12 @@ def packaged_checkpoints(directory: Path = PACKAGED_DIR) -> list[Path]:
 def follows_observation_rule(manifest_path: Path) -> bool:
     """Whether a packaged policy sees only what the robot can know: False where its training configuration hands
     the heads the target's true centre (``reveal_target``, as ``cpu-4d`` does)."""
-    config = TrainConfig.from_json(json.dumps(json.loads(manifest_path.read_text())["config"]))
-    return not config.env.reveal_target
+    return not packaged_config(json.loads(manifest_path.read_text())).env.reveal_target
+
+
+def packaged_config(manifest: dict) -> TrainConfig:
+    """The training configuration a packaged checkpoint's manifest records."""
+    return TrainConfig.from_json(json.dumps(manifest["config"]))
 
 
 def packaged_by_name(name: str, directory: Path = PACKAGED_DIR) -> Path | None:
@@ -143,7 +147,7 @@ def load_packaged(manifest_path: Path) -> PolicySnapshot:
     if manifest_path.suffix != ".json":
         manifest_path = manifest_path.with_suffix(".json")
     manifest = json.loads(manifest_path.read_text())
-    config = TrainConfig.from_json(json.dumps(manifest["config"]))
+    config = packaged_config(manifest)
     weights_path = manifest_path.parent / manifest["weights"]
     if weights_path.suffix == ".safetensors":
         try:
