@@ -413,6 +413,11 @@ def test_a_packaged_checkpoint_dropped_in_is_what_the_demo_runs_and_reports(run_
     written = json.loads(manifest.read_text())
     assert written["final_eval"]["grasps"] == 2 and written["machine"] == "the test machine"
     assert written["train_minutes"] is not None
+    blind = json.loads((run_dir / "eval" / "blind_both_00000002.json").read_text())  # the run's blind evaluation
+    assert written["blind"]["both"]["successes"] == blind["successes"]
+    # the blind pairs round 1 episode up to 2: not the final evaluation's episodes, so no own-images figure beside it
+    assert blind["episodes"] == 2 != written["final_eval"]["episodes"]
+    assert "own_successes" not in written["blind"]["both"]
     trained = load_training_checkpoint(run_checkpoints(run_dir)[-1])
     assert trained.trained, "the tiny run should have made learner updates"
 
@@ -465,7 +470,12 @@ def test_a_packaged_policys_description_gives_its_blind_numbers_beside_its_succe
     assert "82/100 = 82.0%" in text
     assert text.endswith("given another scene's images in every phase (blind): 85/100 = 85.0% (its own images in "
                          "that measurement: 80/100).")  # fmt: skip
-    del manifest["final_eval"]
+    manifest["fixation"] = {"median_cm": 3.98, "fixed_median_cm": 5.4, "spread_x_cm": 1.99, "spread_y_cm": 2.24}
+    assert ("; its learned fixation looked a median 3.98 cm from the nearest object (the bin centre: 5.40 cm), its "
+            "points spread 1.99 x 2.24 cm; given another") in training_description(manifest)  # fmt: skip
+    del manifest["blind"]["both"]["own_successes"]
+    assert training_description(manifest).endswith("another scene's images in every phase (blind): 85/100 = 85.0%.")
+    del manifest["final_eval"], manifest["fixation"]
     assert "no held-out evaluation of these exact weights was recorded; given another scene's" in (
         training_description(manifest))  # fmt: skip
 

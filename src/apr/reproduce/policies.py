@@ -180,10 +180,16 @@ def training_description(manifest: dict) -> str:
         )
     else:
         text += "; no held-out evaluation of these exact weights was recorded"
+    fixation = manifest.get("fixation")
+    if fixation:
+        text += (f"; its learned fixation looked a median {fixation['median_cm']:.2f} cm from the nearest object "
+                 f"(the bin centre: {fixation['fixed_median_cm']:.2f} cm), its points spread "
+                 f"{fixation['spread_x_cm']:.2f} x {fixation['spread_y_cm']:.2f} cm")  # fmt: skip
     for mode, result in manifest.get("blind", {}).items():  # measured later, on the same held-out episodes
         text += (f"; given another scene's images in {blind_phases_text(mode)} (blind): {result['successes']}/"
-                 f"{result['episodes']} = {result['success_rate']:.1%} (its own images in that measurement: "
-                 f"{result['own_successes']}/{result['episodes']})")  # fmt: skip
+                 f"{result['episodes']} = {result['success_rate']:.1%}")  # fmt: skip
+        if "own_successes" in result:
+            text += f" (its own images in that measurement: {result['own_successes']}/{result['episodes']})"
     return text + "."
 
 
@@ -288,9 +294,27 @@ def package_checkpoint(
         "renderer": snapshot.renderer,
         "config": json.loads(config.to_json()),
     }
+    if evaluation and evaluation.get("fixation"):
+        manifest["fixation"] = evaluation["fixation"]  # where the learned fixation looked on those episodes
+    if evaluation and (blind := blind_results(run_dir, evaluation)):
+        manifest["blind"] = blind
     manifest_path = out_dir / f"{name}.json"
     manifest_path.write_text(json.dumps(manifest, indent=2))
     return manifest_path
+
+
+def blind_results(run_dir: Path, evaluation: dict) -> dict:
+    """The run's blind evaluations of the weights ``evaluation`` measured (``eval/blind_MODE_GRASPS.json``), by
+    mode; each beside its own images' successes where the two ran the same held-out episodes (evaluation episodes
+    are seeded alike, so equal counts are the same episodes)."""
+    keep = ("successes", "episodes", "success_rate", "ci_low", "ci_high", "renderer")
+    results = {}
+    for path in sorted((run_dir / "eval").glob(f"blind_*_{int(evaluation['grasps']):08d}.json")):
+        blind = json.loads(path.read_text())
+        results[blind["blind"]] = {key: blind[key] for key in keep if key in blind}
+        if blind["episodes"] == evaluation["episodes"]:
+            results[blind["blind"]]["own_successes"] = evaluation["successes"]
+    return results
 
 
 def _relative(path: str) -> str:
