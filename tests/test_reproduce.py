@@ -495,3 +495,12 @@ def test_figure_3_drives_the_policy_in_its_own_environment_settings():
     learned = initial_snapshot(preset("cpu-learned-4d").resolved(), "cpu-learned-4d__s0")
     driver, _, policy, _ = fig3_driver(learned)
     assert policy is None and driver.target == "env" and not driver.reveal_target  # the scripted policy drives
+
+
+def test_the_shipped_demo_runs_a_trained_policy_that_follows_the_observation_rule():
+    """What ``apr demo`` runs out of the box: packaged weights, trained, whose heads are not handed the target."""
+    snapshot = demo.choose_policy(None)
+
+    assert snapshot.trained and "packaged checkpoint" in snapshot.label
+    assert not snapshot.config.env.reveal_target
+    assert "given another scene's images" in snapshot.training  # its blind numbers are shown beside its success
