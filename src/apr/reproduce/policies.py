@@ -23,7 +23,7 @@ import tyro
 from apr.envs.rendering import EGL_INSTALL, resolve
 from apr.machine import machine_description
 from apr.model.agent import APRAgent
-from apr.reproduce.runs import final_eval
+from apr.reproduce.runs import blind_eval_files, final_eval
 from apr.train.checkpoints import CheckpointError, newest_intact, read_checkpoint
 from apr.train.config import TrainConfig, preset
 from apr.train.evaluation import renderer_mismatch, renderer_request
@@ -294,10 +294,11 @@ def package_checkpoint(
         "renderer": snapshot.renderer,
         "config": json.loads(config.to_json()),
     }
-    if evaluation and evaluation.get("fixation"):
-        manifest["fixation"] = evaluation["fixation"]  # where the learned fixation looked on those episodes
-    if evaluation and (blind := blind_results(run_dir, evaluation)):
-        manifest["blind"] = blind
+    if evaluation:
+        if evaluation.get("fixation"):
+            manifest["fixation"] = evaluation["fixation"]  # where the learned fixation looked on those episodes
+        if blind := blind_results(run_dir, evaluation):
+            manifest["blind"] = blind
     manifest_path = out_dir / f"{name}.json"
     manifest_path.write_text(json.dumps(manifest, indent=2))
     return manifest_path
@@ -309,7 +310,7 @@ def blind_results(run_dir: Path, evaluation: dict) -> dict:
     are seeded alike, so equal counts are the same episodes)."""
     keep = ("successes", "episodes", "success_rate", "ci_low", "ci_high", "renderer")
     results = {}
-    for path in sorted((run_dir / "eval").glob(f"blind_*_{int(evaluation['grasps']):08d}.json")):
+    for path in blind_eval_files(run_dir, int(evaluation["grasps"])):
         blind = json.loads(path.read_text())
         results[blind["blind"]] = {key: blind[key] for key in keep if key in blind}
         if blind["episodes"] == evaluation["episodes"]:

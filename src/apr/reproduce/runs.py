@@ -106,9 +106,14 @@ def run_preset(config: dict) -> str:
     return RENAMED_PRESETS.get(name, name)
 
 
+def blind_eval_files(run_dir: Path, grasps: int) -> list[Path]:
+    """The run's blind evaluations of its policy at ``grasps`` (``eval/blind_MODE_GRASPS.json``), by mode's name."""
+    return sorted((run_dir / "eval").glob(f"blind_*_{grasps:08d}.json"))
+
+
 def blind_eval(run_dir: Path, grasps: int) -> dict | None:
-    """The run's blind evaluation of its policy at ``grasps`` (``eval/blind_*_GRASPS.json``), or None."""
-    for path in sorted((run_dir / "eval").glob(f"blind_*_{grasps:08d}.json")):
+    """The run's blind evaluation of its policy at ``grasps`` (the first of :func:`blind_eval_files`), or None."""
+    for path in blind_eval_files(run_dir, grasps):
         result = json.loads(path.read_text())
         result["path"] = str(path)
         return result
