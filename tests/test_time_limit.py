@@ -96,16 +96,21 @@ def synthetic_observations(steps_left: np.ndarray) -> Observation:
                        torch.zeros(count, 9), steps_left=torch.from_numpy(steps_left.astype(np.float32)))  # fmt: skip
 
 
-def train_on_the_deferral_task(limit_in_task: bool, updates: int = 500, episodes: int = 16) -> APRAgent:
+def deferral_task_agent(limit_in_task: bool) -> APRAgent:
+    """The learner of the deferral task, untrained (its seed fixed)."""
+    return APRAgent(ModelConfig.tiny(image_channels=4, grasp_action_dim=4, batch_size=32, gqn_batch_size=4,
+                                     gqn_update_every=10_000, init_temperature=0.01,
+                                     heads_see_steps_left=limit_in_task))  # fmt: skip
+
+
+def train_on_the_deferral_task(limit_in_task: bool, updates: int = 150, episodes: int = 16) -> APRAgent:
     """A task with a limit: each step the policy either attempts (its dz < 0: irreversible, the episode ends with a
     reward of 1 at chance ``SUCCESS``) or defers (reward 0, one step less). Deferring is never better: an attempt
     later is worth the same, discounted, and at the limit nothing. ``limit_in_task``: the limit is terminal and the
     heads see the steps left (the recipe); False: the earlier target, which bootstraps through the limit, no clock."""
     rng = np.random.default_rng(0)
-    config = ModelConfig.tiny(image_channels=4, grasp_action_dim=4, batch_size=32, gqn_batch_size=4,
-                              gqn_update_every=10_000, init_temperature=0.01,
-                              heads_see_steps_left=limit_in_task)  # fmt: skip
-    agent = APRAgent(config)
+    agent = deferral_task_agent(limit_in_task)
+    config = agent.config
     steps_left = np.full(episodes, LIMIT)
     stored: list[tuple[int, np.ndarray, float, int, float]] = []  # steps left, action, reward, next, terminated
     for step in range(updates):
@@ -142,8 +147,10 @@ def deterministic_attempt_step(agent: APRAgent) -> int | None:
 def test_signs_of_life_with_the_limit_in_the_task_the_policy_attempts_before_the_limit(one_thread) -> None:
     """Through the real learner. This task does not separate the two targets: with the earlier one (the limit
     bootstrapped, no clock) the same training also attempted at the first step (checked once), and with an entropy
-    temperature starting at 0.1 and attempts that succeed one time in five neither attempted within 500 updates.
+    temperature starting at 0.1 and attempts that succeed one time in five neither attempted within 500 updates. The
+    trained policy attempted at the first step after 150, 200, 250, 300 and 500 updates; the untrained one never.
     What separates them is measured on the grasping runs (docs/benchmarks.md, "The 15-step limit")."""
+    assert deterministic_attempt_step(deferral_task_agent(limit_in_task=True)) is None  # untrained: its dz > 0
     assert deterministic_attempt_step(train_on_the_deferral_task(limit_in_task=True)) is not None
 
 

@@ -127,6 +127,7 @@ def test_a_killed_worker_is_replaced_and_the_run_finishes(tmp_path: Path):
     assert int(rows[-1]["grasps"]) == 3  # the lost episode does not count; the run still did its 3
 
 
+@pytest.mark.slow  # 143 s on the quiet 2-core CPU; the default run has the learner's signs of life on tiny tasks
 def test_signs_of_life_the_trained_policy_attempts_grasps_the_untrained_one_never_does(tmp_path: Path):
     """The CPU preset (4-DoF, the environment's target, tiny networks, heads that see g and f, its default
     renderer) for 24 grasps: 8 random, then about 2 joint updates per grasp step. Afterwards the deterministic

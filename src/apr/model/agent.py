@@ -225,7 +225,8 @@ class APRAgent:
                 init_temperature=config.init_temperature,
             )
             self.grasp = PolicyHeads(head_inputs, config.grasp_action_dim, **head_args)
-            self.fixation = PolicyHeads(head_inputs, config.fixation_action_dim, target_critic=False, **head_args)
+            self.fixation = PolicyHeads(head_inputs, config.fixation_action_dim, target_critic=False,
+                                        critic=config.fixation_critic, **head_args)  # fmt: skip
         self.networks = nn.ModuleDict({"encoder": self.encoder, "grasp": self.grasp, "fixation": self.fixation})
         if self.generator is not None:
             self.networks["generator"] = self.generator
@@ -308,7 +309,8 @@ class APRAgent:
         Args:
             obs: dict with images uint8 (N, 3, 64, 64, C), viewpoints (N, 3, 6), gripper (N, 9); views 0 and 1
                 are the context (the views are i.i.d. around the fixation point).
-            deterministic: the mean action tanh(mu) (evaluation) instead of a sample.
+            deterministic: the mean action tanh(mu) (evaluation) instead of a sample; a fixation with the map
+                critic (``fixation_critic="map"``) takes its x and y from the critics' best point instead.
             policy: "grasp" (action (N, 4 or 6)) or "fixation" (action (N, 3)).
 
         Returns:
@@ -319,6 +321,8 @@ class APRAgent:
         with self._autocast():
             r = self._head_input(self._scene(obs, self._first_two(len(obs)), with_grad=0), obs)
             action = heads.actor.mode(r) if deterministic else heads.actor.sample(r, self.act_rng)[0]
+            if deterministic and policy == "fixation" and self.config.fixation_critic == "map":
+                action[:, :2] = heads.critic.best_xy(r)  # the critics' best place, the actor's z
         return action.float().cpu().numpy()
 
     @torch.no_grad()

@@ -123,6 +123,12 @@ class ModelConfig:
     """With the proximity reward: per bandit sample this many more fixation actions, uniform in the action box,
     each with the proximity reward it would have earned in that scene (ours: hindsight relabelling, possible
     because that reward is a known function of the scene; 0 = the chosen action only)."""
+    fixation_critic: Literal["tiled", "map"] = "tiled"
+    """The fixation bandit's critics. "tiled": the action tiled over r's grid, as the grasp critics (paper, Method
+    B). "map" (ours): the conv block and fully connected layer give a value per point of a 12 x 12 lattice over the
+    fixation box's x and y, read at the action (:class:`apr.model.heads.MapCritic`), and the deterministic fixation
+    (evaluation) takes x and y from the critics' best point and z from the actor (docs/decisions.md, "The fixation
+    critic")."""
 
     # --- ablation (paper, section 4C) ---
     representation: bool = True

@@ -110,21 +110,79 @@ class Critic(nn.Module):
             return self.out(self.trunk(x)).squeeze(-1)
 
 
+class MapCritic(nn.Module):
+    """Q(r, a) read from a map over the action's first two coordinates (ours, for the fixation bandit).
+
+    The conv block and one linear layer give a value at each point of a ``map_grid`` x ``map_grid`` lattice over
+    [-1, 1]^2 (the fixation box's x and y); Q is that map bilinearly interpolated at the action's x and y, plus a
+    small function of the action's other coordinates (z). The tiled critic must compare an action it sees as a
+    constant over r's grid with where things are in r, which a conv block does poorly (Liu et al. 2018, "An
+    Intriguing Failing of Convolutional Neural Networks and the CoordConv Solution"); this one reads a value per
+    place, as the probe's ``object_map`` readout does (docs/decisions.md, "The fixation critic").
+    """
+
+    def __init__(
+        self,
+        representation_channels: int,
+        action_dim: int,
+        channels: tuple[int, ...] = (128, 64, 32),
+        grid: int = 16,
+        map_grid: int = 12,
+    ) -> None:
+        super().__init__()
+        if action_dim < 2:
+            raise ValueError("a map critic needs an action of at least 2 coordinates (x, y)")
+        self.map_grid = map_grid
+        self.trunk = conv_block(representation_channels, channels)
+        self.out = nn.Linear(channels[-1] * grid * grid, map_grid * map_grid)
+        rest = action_dim - 2
+        self.rest = nn.Sequential(nn.Linear(rest, 16), nn.ReLU(), nn.Linear(16, 1)) if rest else None
+
+    def value_map(self, r: torch.Tensor) -> torch.Tensor:
+        """r: (B, R, 16, 16) -> the map (B, G, G), fp32; [b, i, j] is the value at x = lattice[i], y = lattice[j]."""
+        with torch.autocast(r.device.type, enabled=False):
+            return self.out(self.trunk(r.float())).view(-1, self.map_grid, self.map_grid)
+
+    def forward(self, r: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """r: (B, R, 16, 16); action: (B, A). Returns Q: (B,) fp32."""
+        action = action.float()
+        # grid_sample's point is (column, row) = (y, x) for a map indexed [x, y]
+        where = action[:, None, None, [1, 0]]
+        q = F.grid_sample(self.value_map(r)[:, None], where, align_corners=True).view(-1)
+        if self.rest is not None:
+            with torch.autocast(r.device.type, enabled=False):
+                q = q + self.rest(action[:, 2:]).squeeze(-1)
+        return q
+
+
 class TwinCritic(nn.Module):
     """Two independent Q networks (clipped double Q, Fujimoto et al. 2018; Haarnoja et al. 2018b)."""
 
-    def __init__(self, *args: object, **kwargs: object) -> None:
+    def __init__(self, *args: object, kind: str = "tiled", **kwargs: object) -> None:
         super().__init__()
-        self.q1 = Critic(*args, **kwargs)  # type: ignore[arg-type]
-        self.q2 = Critic(*args, **kwargs)  # type: ignore[arg-type]
+        critic = {"tiled": Critic, "map": MapCritic}[kind]
+        self.q1 = critic(*args, **kwargs)  # type: ignore[arg-type]
+        self.q2 = critic(*args, **kwargs)  # type: ignore[arg-type]
 
     def forward(self, r: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Both Q estimates, (B,) each."""
         return self.q1(r, action), self.q2(r, action)
 
+    def best_xy(self, r: torch.Tensor) -> torch.Tensor:
+        """Map critics only: the lattice point of the highest value of min(Q1, Q2) per sample, (B, 2) in [-1, 1]
+        (bilinear interpolation peaks at a lattice point, so this is the critic's argmax over x and y)."""
+        if not isinstance(self.q1, MapCritic):
+            raise TypeError("only a map critic has a best point")
+        values = torch.minimum(self.q1.value_map(r), self.q2.value_map(r)).flatten(1)  # (B, G * G)
+        size = self.q1.map_grid
+        best = values.argmax(dim=1)
+        lattice = torch.linspace(-1.0, 1.0, size, device=r.device)
+        return torch.stack([lattice[best // size], lattice[best % size]], dim=-1)
+
 
 class PolicyHeads(nn.Module):
-    """Everything one SAC policy owns: actor, twin critics, their target copies and the temperature."""
+    """Everything one SAC policy owns: actor, twin critics, their target copies and the temperature. ``critic``:
+    "tiled" (:class:`Critic`) or "map" (:class:`MapCritic`)."""
 
     def __init__(
         self,
@@ -135,11 +193,12 @@ class PolicyHeads(nn.Module):
         log_std_bounds: tuple[float, float] = (-20.0, 2.0),
         init_temperature: float = 1.0,
         target_critic: bool = True,
+        critic: str = "tiled",
     ) -> None:
         super().__init__()
         self.action_dim = action_dim
         self.actor = Actor(representation_channels, action_dim, channels, grid, log_std_bounds)
-        self.critic = TwinCritic(representation_channels, action_dim, channels, grid)
+        self.critic = TwinCritic(representation_channels, action_dim, channels, grid, kind=critic)
         # Only a bootstrapping critic needs a target copy; the fixation bandit regresses its reward.
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False) if target_critic else None
         self.log_alpha = nn.Parameter(torch.tensor(math.log(init_temperature)))

@@ -403,8 +403,8 @@ def with_recipe(config: TrainConfig) -> TrainConfig:
 
 
 SCALE_FREE_MODEL_FIELDS = ("representation", "heads_see_proprioception", "heads_see_fixation", "heads_see_steps_left",
-                           "init_temperature",
-                           "fixation_reward", "fixation_relabels", "fixation_proximity_radius")  # fmt: skip
+                           "init_temperature", "fixation_reward", "fixation_relabels", "fixation_proximity_radius",
+                           "fixation_critic")  # fmt: skip
 """Model fields a scale keeps: the structure (the ablation switch) and the recipe. The rest are sizes and speed."""
 
 
