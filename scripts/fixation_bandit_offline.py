@@ -51,6 +51,7 @@ class Args:
     batch: int = 8
     """Bandit samples per update (the CPU presets: 8), each with ``fixation_relabels`` more points."""
     seed: int = 0
+    """Seeds the head's initialisation and the bandit's draws."""
     cache: Path = Path("runs/probe-scenes")
     """``apr probe``'s scene cache (rendered there if missing)."""
     cache_scenes: int = 2000

@@ -148,7 +148,7 @@ def test_signs_of_life_with_the_limit_in_the_task_the_policy_attempts_before_the
     """Through the real learner. This task does not separate the two targets: with the earlier one (the limit
     bootstrapped, no clock) the same training also attempted at the first step (checked once), and with an entropy
     temperature starting at 0.1 and attempts that succeed one time in five neither attempted within 500 updates. The
-    trained policy attempted at the first step after 150, 200, 250, 300 and 500 updates; the untrained one never.
+    trained policy attempted at the first step after 150, 200, 250 and 300 updates; the untrained one never.
     What separates them is measured on the grasping runs (docs/benchmarks.md, "The 15-step limit")."""
     assert deterministic_attempt_step(deferral_task_agent(limit_in_task=True)) is None  # untrained: its dz > 0
     assert deterministic_attempt_step(train_on_the_deferral_task(limit_in_task=True)) is not None

@@ -309,8 +309,9 @@ class APRAgent:
         Args:
             obs: dict with images uint8 (N, 3, 64, 64, C), viewpoints (N, 3, 6), gripper (N, 9); views 0 and 1
                 are the context (the views are i.i.d. around the fixation point).
-            deterministic: the mean action tanh(mu) (evaluation) instead of a sample; a fixation with the map
-                critic (``fixation_critic="map"``) takes its x and y from the critics' best point instead.
+            deterministic: the heads' deterministic action (:meth:`apr.model.heads.PolicyHeads.mode`: tanh(mu),
+                or with the map critic ``fixation_critic="map"`` x and y from the critics' best point) instead of
+                a sample.
             policy: "grasp" (action (N, 4 or 6)) or "fixation" (action (N, 3)).
 
         Returns:
@@ -320,9 +321,7 @@ class APRAgent:
         heads = self.grasp if policy == "grasp" else self.fixation
         with self._autocast():
             r = self._head_input(self._scene(obs, self._first_two(len(obs)), with_grad=0), obs)
-            action = heads.actor.mode(r) if deterministic else heads.actor.sample(r, self.act_rng)[0]
-            if deterministic and policy == "fixation" and self.config.fixation_critic == "map":
-                action[:, :2] = heads.critic.best_xy(r)  # the critics' best place, the actor's z
+            action = heads.mode(r) if deterministic else heads.actor.sample(r, self.act_rng)[0]
         return action.float().cpu().numpy()
 
     @torch.no_grad()

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import copy
 import math
+from typing import Literal
 
 import torch
 import torch.nn.functional as F
@@ -158,7 +159,7 @@ class MapCritic(nn.Module):
 class TwinCritic(nn.Module):
     """Two independent Q networks (clipped double Q, Fujimoto et al. 2018; Haarnoja et al. 2018b)."""
 
-    def __init__(self, *args: object, kind: str = "tiled", **kwargs: object) -> None:
+    def __init__(self, *args: object, kind: Literal["tiled", "map"] = "tiled", **kwargs: object) -> None:
         super().__init__()
         critic = {"tiled": Critic, "map": MapCritic}[kind]
         self.q1 = critic(*args, **kwargs)  # type: ignore[arg-type]
@@ -193,7 +194,7 @@ class PolicyHeads(nn.Module):
         log_std_bounds: tuple[float, float] = (-20.0, 2.0),
         init_temperature: float = 1.0,
         target_critic: bool = True,
-        critic: str = "tiled",
+        critic: Literal["tiled", "map"] = "tiled",
     ) -> None:
         super().__init__()
         self.action_dim = action_dim
@@ -202,6 +203,14 @@ class PolicyHeads(nn.Module):
         # Only a bootstrapping critic needs a target copy; the fixation bandit regresses its reward.
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False) if target_critic else None
         self.log_alpha = nn.Parameter(torch.tensor(math.log(init_temperature)))
+
+    def mode(self, r: torch.Tensor) -> torch.Tensor:
+        """The deterministic action (B, A) used for evaluation: the actor's tanh(mean); with a map critic, x and y
+        from the critics' best point instead (the actor's other coordinates kept)."""
+        action = self.actor.mode(r)
+        if isinstance(self.critic.q1, MapCritic):
+            action[:, :2] = self.critic.best_xy(r)
+        return action
 
     @property
     def target_entropy(self) -> float:
