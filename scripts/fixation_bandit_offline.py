@@ -50,6 +50,8 @@ class Args:
     """Bandit updates (a 600-grasp ``cpu-active-learned-4d`` run makes about 5,000)."""
     batch: int = 8
     """Bandit samples per update (the CPU presets: 8), each with ``fixation_relabels`` more points."""
+    relabels: int = 8
+    """Relabelled points per sample (``ModelConfig.fixation_relabels``; the recipe: 8)."""
     seed: int = 0
     """Seeds the head's initialisation and the bandit's draws."""
     cache: Path = Path("runs/probe-scenes")
@@ -103,14 +105,12 @@ def main(args: Args) -> dict:
         r = train_r[index]
         with torch.no_grad():
             chosen = heads.actor.sample(r, generator)[0]
-        uniform = torch.rand((args.batch, model.fixation_relabels, 3), generator=generator) * 2 - 1
+        uniform = torch.rand((args.batch, args.relabels, 3), generator=generator) * 2 - 1
         actions = torch.cat([chosen[:, None], uniform], dim=1)  # (B, K, 3)
         xy = train_xy[index]
         centres = torch.cat([xy, torch.full((*xy.shape[:-1], 1), OBJECT_Z)], dim=-1)
         rewards = proximity_reward(actions, centres, model.fixation_proximity_radius)
-        samples = actions.shape[1]
-        critic_loss, _ = bandit_critic_loss(heads, r.repeat_interleave(samples, 0), actions.flatten(0, 1),
-                                            rewards.flatten())  # fmt: skip
+        critic_loss, _ = bandit_critic_loss(heads, r, actions, rewards)
         actor_loss, log_prob, _ = sac_actor_loss(heads, r, generator)
         alpha_loss, _ = temperature_loss(heads.log_alpha, log_prob, heads.target_entropy)
         for optimizer in optimizers:  # as the learner does: one backward of the sum, then every step
@@ -125,7 +125,7 @@ def main(args: Args) -> dict:
     critic_points = fixation_points(torch.cat([critic_best, mode[:, 2:]], dim=1))[:, :2]
     result = {
         "run": str(args.run), "critic": args.critic, "scenes": args.scenes, "updates": args.updates,
-        "batch": args.batch, "seed": args.seed,
+        "batch": args.batch, "relabels": args.relabels, "seed": args.seed,
         "actor_cm": round(look_cm(actor_points, heldout_xy), 2),
         "critic_best_cm": round(look_cm(critic_points, heldout_xy), 2),
         "actor_spread_cm": [round(float(s) * 100, 2) for s in actor_points.std(0)],

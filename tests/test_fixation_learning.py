@@ -88,6 +88,20 @@ def test_the_map_critic_reads_its_map_at_the_action_and_knows_its_best_point() -
     assert critic.best_xy(r).tolist() == [[1.0, 1.0], [1.0, 1.0]]  # the highest of min(Q1, Q2): known[2, 2]
 
 
+@pytest.mark.parametrize("kind", ["tiled", "map"])
+def test_a_critic_values_several_actions_per_scene_as_it_values_each_alone(kind: str) -> None:
+    """The bandit's relabelled points: (B, K, A) actions give (B, K) values, each that of the (B, A) call."""
+    torch.manual_seed(0)
+    critic = TwinCritic(4, 3, (4,), 16, kind=kind)
+    r, actions = torch.randn(2, 4, 16, 16), torch.rand(2, 5, 3) * 2 - 1
+    together = critic(r, actions)
+    for k in range(5):
+        alone = critic(r, actions[:, k])
+        for q_together, q_alone in zip(together, alone, strict=True):
+            torch.testing.assert_close(q_together[:, k], q_alone)
+    assert together[0].shape == (2, 5)
+
+
 def test_with_the_map_critic_the_deterministic_fixation_looks_at_the_critics_best_point() -> None:
     config = ModelConfig.tiny(image_channels=3, grasp_action_dim=4, fixation_critic="map", fixation_reward="proximity",
                               fixation_relabels=8)  # fmt: skip

@@ -451,12 +451,8 @@ class APRAgent:
                 fix_obs = fixation_batch.obs
                 r_fix_critic = self._head_input(r_fix.detach() if config.representation else r_fix, fix_obs)
                 actions, rewards = self._bandit_targets(fixation_batch)  # (B, K, 3), (B, K)
-                samples = actions.shape[1]
                 losses["fixation/critic"], m = bandit_critic_loss(
-                    self.fixation,
-                    r_fix_critic.repeat_interleave(samples, dim=0) if samples > 1 else r_fix_critic,
-                    actions.flatten(0, 1).float(),
-                    rewards.flatten().float(),
+                    self.fixation, r_fix_critic, actions.float(), rewards.float()
                 )
                 metrics.update({f"fixation/{k}": v for k, v in m.items()})
                 r_fix_actor = self._head_input(r_fix.detach(), fix_obs)

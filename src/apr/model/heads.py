@@ -105,7 +105,11 @@ class Critic(nn.Module):
         self.out = nn.Linear(channels[-1] * grid * grid, 1)
 
     def forward(self, r: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        """r: (B, R, 16, 16); action: (B, A). Returns Q: (B,) fp32."""
+        """r: (B, R, 16, 16); action: (B, A), or (B, K, A) for K actions per scene. Returns Q: (B,) or (B, K),
+        fp32. Each action is a pass of the conv block."""
+        if action.dim() == 3:
+            many = action.shape[1]
+            return self(r.repeat_interleave(many, dim=0), action.flatten(0, 1)).view(-1, many)
         with torch.autocast(r.device.type, enabled=False):
             x = torch.cat([r.float(), tile(action.float(), r.shape[-1])], dim=1)
             return self.out(self.trunk(x)).squeeze(-1)
@@ -145,15 +149,17 @@ class MapCritic(nn.Module):
             return self.out(self.trunk(r.float())).view(-1, self.map_grid, self.map_grid)
 
     def forward(self, r: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        """r: (B, R, 16, 16); action: (B, A). Returns Q: (B,) fp32."""
-        action = action.float()
+        """r: (B, R, 16, 16); action: (B, A), or (B, K, A) for K actions per scene. Returns Q: (B,) or (B, K),
+        fp32. The map is computed once per scene, however many actions read it."""
+        many = action.dim() == 3
+        action = (action if many else action[:, None]).float()  # (B, K, A)
         # grid_sample's point is (column, row) = (y, x) for a map indexed [x, y]
-        where = action[:, None, None, [1, 0]]
-        q = F.grid_sample(self.value_map(r)[:, None], where, align_corners=True).view(-1)
+        where = action[:, None, :, [1, 0]]  # (B, 1, K, 2)
+        q = F.grid_sample(self.value_map(r)[:, None], where, align_corners=True)[:, 0, 0]  # (B, K)
         if self.rest is not None:
             with torch.autocast(r.device.type, enabled=False):
-                q = q + self.rest(action[:, 2:]).squeeze(-1)
-        return q
+                q = q + self.rest(action[..., 2:]).squeeze(-1)
+        return q if many else q[:, 0]
 
 
 class TwinCritic(nn.Module):
@@ -166,7 +172,7 @@ class TwinCritic(nn.Module):
         self.q2 = critic(*args, **kwargs)  # type: ignore[arg-type]
 
     def forward(self, r: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Both Q estimates, (B,) each."""
+        """Both Q estimates, (B,) each for actions (B, A), (B, K) each for (B, K, A)."""
         return self.q1(r, action), self.q2(r, action)
 
     def best_xy(self, r: torch.Tensor) -> torch.Tensor:

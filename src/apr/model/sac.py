@@ -70,7 +70,7 @@ def bandit_critic_loss(
     """Critic of a contextual bandit (the fixation policy): both critics regress the reward, no bootstrap.
 
     Args:
-        r: (B, R, 16, 16); action: (B, A); reward: (B,).
+        r: (B, R, 16, 16); action: (B, A) and reward (B,), or K of each per scene: (B, K, A) and (B, K).
     """
     q1, q2 = heads.critic(r, action)
     loss = 0.5 * ((q1 - reward) ** 2).mean() + 0.5 * ((q2 - reward) ** 2).mean()
