@@ -62,15 +62,15 @@ def test_a_probe_of_an_untrained_encoder_writes_its_entries(tmp_path, one_thread
     entries = json.loads(path.read_text())
     assert path == tmp_path / "out" / "untrained-smoke" / "probe.json"
     assert [(e["label"], e["readout"]) for e in entries] == [(label, readout)
-                                                              for label in ("nearest_object_xy", "object_map")
+                                                              for label in probe.SCENE_LABELS
                                                               for readout in ("linear", "head")]  # fmt: skip
     for entry in entries:
         assert entry["checkpoint"] == "untrained:smoke" and (entry["train_scenes"], entry["heldout_scenes"]) == (10, 4)
         assert entry["heldout_median_cm"] >= 0 and entry["constant_median_cm"] > 0
         assert (entry["initial_views"], entry["encoder_init"]) == ("drawn", "he")
     run(args)  # again, from the cached scenes: the same entries replace the old ones
-    assert len(json.loads(path.read_text())) == 4
-    with pytest.raises(ConfigError, match="have only nearest_object_xy, object_map"):
+    assert len(json.loads(path.read_text())) == 6
+    with pytest.raises(ConfigError, match="have only nearest_object_xy, nearest_object_map, object_map"):
         run(ProbeArgs(source="untrained:smoke", labels=("target_xy",), out=tmp_path / "out", cache=tmp_path / "c"))
 
 
@@ -112,3 +112,26 @@ def test_the_object_map_peaks_at_each_object_and_a_look_is_scored_by_the_nearest
     looks[1, far] = 1.0
     farthest_cm = 100 * np.linalg.norm(points[far] - objects, axis=1).min()
     assert probe.look_error_cm(looks, padded) == pytest.approx((0.1 + farthest_cm) / 2, abs=0.01)
+
+
+def test_the_nearest_object_map_peaks_at_that_object_alone_and_is_scored_against_it() -> None:
+    """Two objects beside two of the map's points; the one at point 77 is the nearest to the bin centre. A look at the
+    other object scores 0 against every object (``object_map``) and their distance against the nearest alone."""
+    points = probe.map_points()
+    objects = points[[5, 77]].astype(np.float32)
+    labels = {"nearest_object_xy": objects[None, 1]}
+    object_xy = np.concatenate([objects, np.full((6, 2), np.nan)])[None]
+    scenes = probe.Scenes(
+        np.zeros((1, 3, 64, 64, 3), np.uint8),
+        np.zeros((1, 3, 6), np.float32),
+        np.zeros((1, 9), np.float32),
+        labels,
+        object_xy,
+    )
+    nearest_map = scenes.labels["nearest_object_map"]
+    assert nearest_map.shape == (1, probe.MAP_GRID**2) and nearest_map[0].argmax() == 77 and nearest_map[0, 5] == 0.0
+    look_at_the_other = torch.zeros(1, probe.MAP_GRID**2)
+    look_at_the_other[0, 5] = 1.0
+    between_cm = 100 * float(np.linalg.norm(objects[0] - objects[1]))
+    assert probe.error_cm("object_map", look_at_the_other, None, scenes) == 0.0
+    assert probe.error_cm("nearest_object_map", look_at_the_other, None, scenes) == pytest.approx(between_cm, abs=0.01)

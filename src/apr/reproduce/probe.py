@@ -17,6 +17,12 @@ Labels (m):
   ``1 - min(d, MAP_RADIUS) / MAP_RADIUS``, d the xy distance to the nearest object centre (every kind of scene). Its
   error is that of a look: the xy distance from the predicted map's highest point to the nearest object, the
   question a learned fixation answers (the constant: the training maps' mean, whose highest point is one place).
+- ``nearest_object_map``: ``nearest_object_xy`` as a map, the object nearest the bin centre alone (the same values
+  around that one object, 0 elsewhere): heatmap rather than coordinate regression, as keypoint detectors read a
+  location (Tompson et al. 2014, "Joint Training of a Convolutional Network and a Graphical Model for Human Pose
+  Estimation"). A regression of the xy is pulled to the mean of the places the nearest object might be; a map can
+  keep them apart and its highest point picks one. Its error: from that point to the nearest object, no other.
+  Derived from ``nearest_object_xy`` (every kind of scene, cached scenes included).
 """
 
 from __future__ import annotations
@@ -45,8 +51,8 @@ from apr.model.heads import SpatialSoftArgmax, conv_block
 from apr.reproduce.policies import load_policy, untrained_snapshot
 from apr.train.config import ConfigError, EnvConfig
 
-LABELS = ("nearest_object_xy", "object_map", "target_xy", "tip_target_offset")
-SCENE_LABELS = ("nearest_object_xy", "object_map")
+LABELS = ("nearest_object_xy", "nearest_object_map", "object_map", "target_xy", "tip_target_offset")
+SCENE_LABELS = ("nearest_object_xy", "nearest_object_map", "object_map")
 """The labels of every kind of scene; the environment's target adds the rest."""
 READOUTS = ("linear", "head", "spatial", "end_to_end")
 PROBE_SEED = 3_000_000_000
@@ -94,8 +100,8 @@ class ProbeArgs:
     heldout_scenes: int = 100
     """Held-out scenes (the 100 test objects, exactly 5 in the tray) the errors are measured on."""
     labels: tuple[str, ...] = ()
-    """Labels to probe (``nearest_object_xy``, ``target_xy``, ``tip_target_offset``); default: every one the
-    scenes have."""
+    """Labels to probe (``nearest_object_xy``, ``nearest_object_map``, ``object_map``, ``target_xy``,
+    ``tip_target_offset``); default: every one the scenes have."""
     readouts: tuple[str, ...] = READOUTS
     """``linear`` (ridge regression on r, its strength chosen by 5-fold cross-validation), ``head`` (a conv block
     the size of the policy heads' and a linear layer, on r), ``spatial`` (the same with spatial soft-argmax
@@ -127,6 +133,12 @@ class Scenes:
     """Each float32 (S, D): metres, or the values of ``object_map``."""
     object_xy: np.ndarray | None = None
     """float32 (S, MAX_OBJECTS, 2): the objects' centres, NaN rows for fewer (the simulator's; for errors only)."""
+
+    def __post_init__(self) -> None:
+        if "nearest_object_xy" in self.labels:  # derived, so that scenes cached before it have it too
+            self.labels["nearest_object_map"] = np.stack(
+                [object_map(xy[None]) for xy in self.labels["nearest_object_xy"]]
+            ).astype(np.float32)
 
     def observation(self, index: np.ndarray | slice = slice(None)) -> Observation:
         return Observation.from_env({"images": self.images[index], "viewpoints": self.viewpoints[index],
@@ -330,17 +342,20 @@ def median_cm(predictions: torch.Tensor, labels: torch.Tensor) -> float:
 
 
 def look_error_cm(maps: torch.Tensor, object_xy: np.ndarray) -> float:
-    """The error of predicted ``object_map``s (M, MAP_GRID ** 2): the median over scenes of the xy distance (cm)
-    from each map's highest point to the nearest of its scene's objects (``object_xy``: (M, MAX_OBJECTS, 2))."""
+    """The error of predicted maps (M, MAP_GRID ** 2): the median over scenes of the xy distance (cm) from each map's
+    highest point to the nearest of its scene's objects (``object_xy``: (M, K, 2), NaN rows for none)."""
     looked = map_points()[maps.argmax(dim=1).numpy()]  # (M, 2)
     distance = np.linalg.norm(looked[:, None] - object_xy, axis=-1)  # (M, MAX_OBJECTS), NaN for padding
     return round(100 * float(np.median(np.nanmin(distance, axis=1))), 2)
 
 
 def error_cm(label: str, predictions: torch.Tensor, labels: torch.Tensor, scenes: Scenes) -> float:
-    """A label's held-out error in cm: :func:`look_error_cm` for ``object_map``, else :func:`median_cm`."""
+    """A label's held-out error in cm: :func:`look_error_cm` for the maps (``object_map`` against every object,
+    ``nearest_object_map`` against the nearest object alone), else :func:`median_cm`."""
     if label == "object_map":
         return look_error_cm(predictions, scenes.object_xy)
+    if label == "nearest_object_map":
+        return look_error_cm(predictions, scenes.labels["nearest_object_xy"][:, None])
     return median_cm(predictions, labels)
 
 
