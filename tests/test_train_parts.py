@@ -180,13 +180,22 @@ def test_a_render_size_the_foveations_cannot_sample_is_refused_by_its_flag(rende
 
 
 def test_fixed_initial_views_reach_the_active_env_and_the_passive_one_refuses_them():
-    config = preset("cpu-active-learned-4d")
-    assert "initial_views" not in config.env.make_kwargs("train")  # drawn: what every saved run had
+    config = preset("active-learned-4d")
+    assert "initial_views" not in config.env.make_kwargs("train")  # drawn: the paper's, and every older run's
     config.env.initial_views = "fixed"
     assert config.env.make_kwargs("train")["initial_views"] == "fixed" and config.problems() == []
     passive = preset("cpu-passive-target")
     passive.env.initial_views = "fixed"
     assert passive.problems() == ["--env.initial-views fixed needs the head: the passive model's cameras are static"]
+
+
+def test_a_learned_fixation_looks_with_fixed_views_and_a_map_critic_at_cpu_scale_only():
+    for name in ("active-learned-4d", "active-learned-6d"):
+        paper, cpu = preset(name), preset(f"cpu-{name}")
+        assert (paper.env.initial_views, paper.model.fixation_critic) == ("drawn", "tiled")
+        assert (cpu.env.initial_views, cpu.model.fixation_critic) == ("fixed", "map") and cpu.problems() == []
+    target = preset("cpu-active-target")
+    assert (target.env.initial_views, target.model.fixation_critic) == ("drawn", "tiled")
 
 
 def test_a_replay_that_does_not_fit_is_refused(monkeypatch, tmp_path: Path):
