@@ -446,7 +446,9 @@ PAPER_PRESET_LIST: list[tuple[str, tuple[str, TrainConfig]]] = [
 PAPER_SCALE = {name: (text, with_recipe(config)) for name, (text, config) in PAPER_PRESET_LIST}
 CPU_SCALE = {
     CPU_PREFIX + name: (f"{name} at CPU scale: tiny networks, TinyRenderer at 128, {TABLE1_CPU_GRASPS} grasps; the "
-                        "same structure and recipe", cpu_scale(name, config))
+                        "same structure and recipe" + ("; the fixation looks from fixed initial views with a map "
+                                                       "critic" if config.env.learned_fixation else ""),
+                        cpu_scale(name, config))
     for name, (_, config) in PAPER_SCALE.items()
 }  # fmt: skip
 """Table 1 at CPU scale (``apr reproduce table1 --scale cpu``)."""
