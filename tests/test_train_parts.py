@@ -194,6 +194,7 @@ def test_a_learned_fixation_looks_with_fixed_views_and_a_map_critic_at_cpu_scale
         paper, cpu = preset(name), preset(f"cpu-{name}")
         assert (paper.env.initial_views, paper.model.fixation_critic) == ("drawn", "tiled")
         assert (cpu.env.initial_views, cpu.model.fixation_critic) == ("fixed", "map") and cpu.problems() == []
+        assert (paper.model.fixation_relabels, cpu.model.fixation_relabels) == (8, 64)
     target = preset("cpu-active-target")
     assert (target.env.initial_views, target.model.fixation_critic) == ("drawn", "tiled")
 
