@@ -49,9 +49,9 @@ class Args:
     updates: int = 5000
     """Bandit updates (a 600-grasp ``cpu-active-learned-4d`` run makes about 5,000)."""
     batch: int = 8
-    """Bandit samples per update (the CPU presets: 8), each with ``fixation_relabels`` more points."""
+    """Bandit samples per update (the CPU presets: 8), each with ``--relabels`` more points."""
     relabels: int = 8
-    """Relabelled points per sample (``ModelConfig.fixation_relabels``; the recipe: 8)."""
+    """Relabelled points per sample (``ModelConfig.fixation_relabels``: 8 at paper size, 64 in the CPU presets)."""
     seed: int = 0
     """Seeds the head's initialisation and the bandit's draws."""
     cache: Path = Path("runs/probe-scenes")

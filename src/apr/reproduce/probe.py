@@ -54,6 +54,8 @@ from apr.train.config import ConfigError, EnvConfig
 LABELS = ("nearest_object_xy", "nearest_object_map", "object_map", "target_xy", "tip_target_offset")
 SCENE_LABELS = ("nearest_object_xy", "nearest_object_map", "object_map")
 """The labels of every kind of scene; the environment's target adds the rest."""
+DERIVED_LABELS = ("nearest_object_map",)
+"""Labels :class:`Scenes` derives from the others when it is made: never written to the scene cache."""
 READOUTS = ("linear", "head", "spatial", "end_to_end")
 PROBE_SEED = 3_000_000_000
 """Probe scenes use the seeds PROBE_SEED + k (training split) and PROBE_SEED + HELDOUT_OFFSET + k (held out): apart
@@ -224,7 +226,8 @@ def cached_scenes(env_config: EnvConfig, split: str, count: int, first_seed: int
     with open(temporary, "wb") as file:
         np.savez(file, images=scenes.images, viewpoints=scenes.viewpoints, gripper=scenes.gripper,
                  object_xy=scenes.object_xy,
-                 **{f"label_{name}": value for name, value in scenes.labels.items()})  # fmt: skip
+                 **{f"label_{name}": value for name, value in scenes.labels.items()
+                    if name not in DERIVED_LABELS})  # fmt: skip
     temporary.replace(path)
     return scenes
 
@@ -345,7 +348,7 @@ def look_error_cm(maps: torch.Tensor, object_xy: np.ndarray) -> float:
     """The error of predicted maps (M, MAP_GRID ** 2): the median over scenes of the xy distance (cm) from each map's
     highest point to the nearest of its scene's objects (``object_xy``: (M, K, 2), NaN rows for none)."""
     looked = map_points()[maps.argmax(dim=1).numpy()]  # (M, 2)
-    distance = np.linalg.norm(looked[:, None] - object_xy, axis=-1)  # (M, MAX_OBJECTS), NaN for padding
+    distance = np.linalg.norm(looked[:, None] - object_xy, axis=-1)  # (M, K), NaN for padding
     return round(100 * float(np.median(np.nanmin(distance, axis=1))), 2)
 
 
