@@ -52,6 +52,8 @@ class Args:
     """Bandit samples per update (the CPU presets: 8), each with ``--relabels`` more points."""
     relabels: int = 8
     """Relabelled points per sample (``ModelConfig.fixation_relabels``: 8 at paper size, 64 in the CPU presets)."""
+    radius: float | None = None
+    """m: the proximity reward's radius (default: the run's ``ModelConfig.fixation_proximity_radius``)."""
     seed: int = 0
     """Seeds the head's initialisation and the bandit's draws."""
     cache: Path = Path("runs/probe-scenes")
@@ -93,6 +95,7 @@ def main(args: Args) -> dict:
     train_xy = torch.from_numpy(train.object_xy[: args.scenes])
     heldout_xy = torch.from_numpy(heldout.object_xy)
     model = config.model
+    radius = model.fixation_proximity_radius if args.radius is None else args.radius
     generator = torch.Generator().manual_seed(args.seed)
     torch.manual_seed(args.seed)
     heads = PolicyHeads(train_r.shape[1], 3, channels=tuple(model.head_channels), grid=train_r.shape[-1],
@@ -109,7 +112,7 @@ def main(args: Args) -> dict:
         actions = torch.cat([chosen[:, None], uniform], dim=1)  # (B, K, 3)
         xy = train_xy[index]
         centres = torch.cat([xy, torch.full((*xy.shape[:-1], 1), OBJECT_Z)], dim=-1)
-        rewards = proximity_reward(actions, centres, model.fixation_proximity_radius)
+        rewards = proximity_reward(actions, centres, radius)
         critic_loss, _ = bandit_critic_loss(heads, r, actions, rewards)
         actor_loss, log_prob, _ = sac_actor_loss(heads, r, generator)
         alpha_loss, _ = temperature_loss(heads.log_alpha, log_prob, heads.target_entropy)
@@ -125,7 +128,7 @@ def main(args: Args) -> dict:
     critic_points = fixation_points(torch.cat([critic_best, mode[:, 2:]], dim=1))[:, :2]
     result = {
         "run": str(args.run), "critic": args.critic, "scenes": args.scenes, "updates": args.updates,
-        "batch": args.batch, "relabels": args.relabels, "seed": args.seed,
+        "batch": args.batch, "relabels": args.relabels, "radius": radius, "seed": args.seed,
         "actor_cm": round(look_cm(actor_points, heldout_xy), 2),
         "critic_best_cm": round(look_cm(critic_points, heldout_xy), 2),
         "actor_spread_cm": [round(float(s) * 100, 2) for s in actor_points.std(0)],

@@ -132,7 +132,7 @@ def test_an_actor_is_recycled_after_its_episodes_and_an_environment_error_costs_
     and answers the next reset."""
     from apr.cluster.ray_workers import RayEnvWorkers
 
-    with RayEnvWorkers(1, "apr/ActiveGrasp-v1", {"dof": 4, "target": "env", "renderer": "tiny"},
+    with RayEnvWorkers(1, "apr/ActiveGrasp-v2", {"dof": 4, "target": "env", "renderer": "tiny"},
                        recycle_every=1) as workers:  # fmt: skip
         first = assert_recycling_replays_a_seed(workers)
         workers.send_step(0, np.zeros(7, np.float32))  # a 4-DoF environment refuses a 7-number action

@@ -1,4 +1,4 @@
-"""The Gymnasium API of ``apr/ActiveGrasp-v1`` and ``apr/PassiveGrasp-v1``: checker, determinism, memory,
+"""The Gymnasium API of ``apr/ActiveGrasp-v2`` and ``apr/PassiveGrasp-v2``: checker, determinism, memory,
 spaces, bad input, episode structure, vectorisation."""
 
 from __future__ import annotations

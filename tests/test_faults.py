@@ -331,12 +331,12 @@ def test_contradictory_env_flags_are_refused_by_name_and_a_presets_own_values_ar
 
     monkeypatch.setattr(trainer, "Trainer", Recorder)
     runs = tmp_path / "runs"
-    passive = ["train", "--preset", "active-target", "--runs-dir", str(runs), "--env.env-id", "apr/PassiveGrasp-v1"]
+    passive = ["train", "--preset", "active-target", "--runs-dir", str(runs), "--env.env-id", "apr/PassiveGrasp-v2"]
     for flag, value in (("--env.target", "learned"), ("--env.foveation", "logpolar")):
         with pytest.raises(SystemExit) as refused:
             main([*passive, flag, value])
         message = str(refused.value)
-        assert message.startswith(f"apr train: error: {flag} {value} contradicts --env.env-id apr/PassiveGrasp-v1")
+        assert message.startswith(f"apr train: error: {flag} {value} contradicts --env.env-id apr/PassiveGrasp-v2")
         assert "\n" not in message
     assert not started and not runs.exists()
 
@@ -403,13 +403,13 @@ def test_commands_check_their_arguments_before_any_work(run_dir: Path, args: lis
 
 
 # ------------------------------------------------------------------------------------------ environments
-ACTIVE = "apr/ActiveGrasp-v1"
+ACTIVE = "apr/ActiveGrasp-v2"
 VECTOR_SCRIPT = """
     import sys
     import gymnasium, numpy as np
     import apr
 
-    make = lambda: gymnasium.make("apr/ActiveGrasp-v1", dof=4, renderer="auto")  # EGL where it loads
+    make = lambda: gymnasium.make("apr/ActiveGrasp-v2", dof=4, renderer="auto")  # EGL where it loads
     if sys.argv[1] == "after-egl":  # this process renders with EGL before it forks
         env = make()
         env.reset(seed=0)

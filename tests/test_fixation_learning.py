@@ -88,6 +88,24 @@ def test_the_map_critic_reads_its_map_at_the_action_and_knows_its_best_point() -
     assert critic.best_xy(r).tolist() == [[1.0, 1.0], [1.0, 1.0]]  # the highest of min(Q1, Q2): known[2, 2]
 
 
+def test_the_map_critics_best_point_is_found_between_lattice_points() -> None:
+    """A paraboloid peaking between lattice points: the refinement finds its peak exactly; one peaking at the
+    map's edge keeps the lattice coordinate on that axis."""
+    critic = TwinCritic(4, 2, (4,), 16, kind="map", map_grid=5)  # lattice -1, -0.5, 0, 0.5, 1
+    lattice = torch.linspace(-1.0, 1.0, 5)
+    x, y = torch.meshgrid(lattice, lattice, indexing="ij")
+    for q in (critic.q1, critic.q2):
+        nn.init.zeros_(q.out.weight)
+        with torch.no_grad():
+            q.out.bias.copy_((-((x - 0.1) ** 2) - (y + 0.2) ** 2).flatten())
+    r = torch.randn(1, 4, 16, 16)
+    assert critic.best_xy(r)[0].tolist() == pytest.approx([0.1, -0.2])
+    for q in (critic.q1, critic.q2):
+        with torch.no_grad():
+            q.out.bias.copy_((-((x - 1.3) ** 2) - (y + 0.2) ** 2).flatten())
+    assert critic.best_xy(r)[0].tolist() == pytest.approx([1.0, -0.2])  # x at the edge
+
+
 @pytest.mark.parametrize("kind", ["tiled", "map"])
 def test_a_critic_values_several_actions_per_scene_as_it_values_each_alone(kind: str) -> None:
     """The bandit's relabelled points: (B, K, A) actions give (B, K) values, each that of the (B, A) call."""

@@ -19,7 +19,7 @@ UPDATES = 100
 @pytest.fixture(scope="module")
 def rendered_observations() -> Observation:
     """12 grasp-step observations of the active env (target mask: 4 channels), random actions."""
-    env = gymnasium.make("apr/ActiveGrasp-v1", renderer="tiny")
+    env = gymnasium.make("apr/ActiveGrasp-v2", renderer="tiny")
     rng = np.random.default_rng(0)
     obs, _ = env.reset(seed=0)
     collected = []

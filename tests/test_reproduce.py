@@ -489,7 +489,7 @@ def test_figure_3_drives_the_policy_in_its_own_environment_settings():
 
     snapshot = initial_snapshot(preset("cpu-4d").resolved(), "cpu-4d__s0")
     own, replay, policy, _ = fig3_driver(snapshot)
-    assert policy is not None and own.env_id == "apr/ActiveGrasp-v1" and replay.env_id == "apr/PassiveGrasp-v1"
+    assert policy is not None and own.env_id == "apr/ActiveGrasp-v2" and replay.env_id == "apr/PassiveGrasp-v2"
     assert own.reveal_target and own.render_size == 128 and own.renderer == "tiny" and own.dof == 4
     assert replay.foveation == "resize" and replay.render_size == 128
     learned = initial_snapshot(preset("cpu-learned-4d").resolved(), "cpu-learned-4d__s0")

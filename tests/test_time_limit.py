@@ -178,4 +178,4 @@ def test_the_warm_up_moves_down_as_the_benchmark_s_random_policy_and_so_attempts
     assert np.abs(grasp[:, [0, 1, 3, 4, 5]].mean()) < 0.02 and grasp.min() >= -1 and grasp.max() <= 1
     assert not np.any(policy({"images": np.zeros((4000, 1))}, "fixation") == -1.0)  # the fixation stays uniform
     assert warmup_attempts(make_env, down_probability=0.0) == 0
-    assert warmup_attempts(make_env, down_probability=0.9) == 3
+    assert warmup_attempts(make_env, down_probability=0.9) == 2  # of 3 (v1: 3; in v2 the tilts differ)

@@ -129,7 +129,7 @@ def test_preset_table_matches_the_paper():
     assert learned.model.fixation_reward == "proximity" and grasp_reward.model.fixation_reward == "grasp"
     assert learned.model.replace(fixation_reward="grasp", fixation_relabels=0) == grasp_reward.model  # one change
     assert preset("cpu-learned-4d") == learned  # its earlier name
-    assert preset("passive-target").env.env_id == "apr/PassiveGrasp-v1"
+    assert preset("passive-target").env.env_id == "apr/PassiveGrasp-v2"
     assert preset("active-target-no-logpolar").env.foveation == "resize"
     assert preset("active-target-no-representation").model.representation is False
     assert preset("active-learned-4d").env.dof == 4 and preset("active-learned-4d").env.target == "learned"
@@ -195,6 +195,7 @@ def test_a_learned_fixation_looks_with_fixed_views_and_a_map_critic_at_cpu_scale
         assert (paper.env.initial_views, paper.model.fixation_critic) == ("drawn", "tiled")
         assert (cpu.env.initial_views, cpu.model.fixation_critic) == ("fixed", "map") and cpu.problems() == []
         assert (paper.model.fixation_relabels, cpu.model.fixation_relabels) == (8, 64)
+        assert (paper.model.fixation_proximity_radius, cpu.model.fixation_proximity_radius) == (0.15, 0.10)
     target = preset("cpu-active-target")
     assert (target.env.initial_views, target.model.fixation_critic) == ("drawn", "tiled")
 
@@ -247,7 +248,7 @@ def test_a_trainer_records_what_its_workers_render_with_and_warns_when_it_change
 
 def test_a_killed_worker_is_replaced_and_the_episode_reported_lost():
     kwargs = {"dof": 4, "target": "env", "renderer": "tiny"}
-    with EnvWorkers(1, "apr/ActiveGrasp-v1", kwargs) as workers:
+    with EnvWorkers(1, "apr/ActiveGrasp-v2", kwargs) as workers:
         workers.send_reset(0, 1)
         observation_, _ = workers.receive(0)
         assert observation_["images"].shape == (3, 64, 64, 4)

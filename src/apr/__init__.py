@@ -1,8 +1,9 @@
 """APR: Active Perception and Representation for Robotic Manipulation.
 
-Importing ``apr`` registers the environments ``apr/ActiveGrasp-v1`` and ``apr/PassiveGrasp-v1`` (the 15-step limit
-is part of the task: it terminates, and the observation has the steps left), and their earlier versions ``-v0``
-(the limit truncates, no clock in the observation), which runs trained on them still evaluate on.
+Importing ``apr`` registers the environments ``apr/ActiveGrasp-v2`` and ``apr/PassiveGrasp-v2`` (the 15-step limit
+is part of the task: it terminates, and the observation has the steps left; the workspace's floor holds the tool
+tip, so a tilted gripper can reach the grasp height), and their earlier versions, which runs trained on them still
+evaluate on: ``-v1`` (the floor holds the end-effector link) and ``-v0`` (also the limit truncates, no clock).
 """
 
 import warnings
@@ -19,10 +20,9 @@ from apr.envs.objects import object_ids  # noqa: E402
 __all__ = ["object_ids"]
 __version__ = "0.1.0"
 
-for version, limit_in_task in (("v0", False), ("v1", True)):
-    gymnasium.register(id=f"apr/ActiveGrasp-{version}", entry_point="apr.envs.grasp_env:ActiveGraspEnv",
-                       kwargs={"limit_in_task": limit_in_task})  # fmt: skip
-    gymnasium.register(id=f"apr/PassiveGrasp-{version}", entry_point="apr.envs.grasp_env:PassiveGraspEnv",
-                       kwargs={"limit_in_task": limit_in_task})  # fmt: skip
-# Runs saved before v1 name v0: evaluating them is expected, not a sign of an outdated setup.
-warnings.filterwarnings("ignore", message=r".*apr/(Active|Passive)Grasp-v0 is out of date")
+for version, limit_in_task, tilted_reach in (("v0", False, False), ("v1", True, False), ("v2", True, True)):
+    kwargs = {"limit_in_task": limit_in_task, "tilted_reach": tilted_reach}
+    for name, entry_point in (("ActiveGrasp", "ActiveGraspEnv"), ("PassiveGrasp", "PassiveGraspEnv")):
+        gymnasium.register(id=f"apr/{name}-{version}", entry_point=f"apr.envs.grasp_env:{entry_point}", kwargs=kwargs)
+# Runs saved before v2 name v0 or v1: evaluating them is expected, not a sign of an outdated setup.
+warnings.filterwarnings("ignore", message=r".*apr/(Active|Passive)Grasp-v[01] is out of date")

@@ -99,6 +99,9 @@ class ArmSpec:
     benchmark's 0.45 lower bound left 17% of the objects (dropped over x in [0.40, 0.70]) out of reach."""
     max_tilt: float = math.pi / 4
     """ours: |b| and |c| (tilts of the gripper away from pointing down) are clipped to this, in rad."""
+    tip_below_end_effector: float = 0.22
+    """m from the end-effector link down to the tool tip when the gripper points down (0.217 measured at reset).
+    Tilted by b and c, the tip hangs about this times cos(b) cos(c) below the link."""
 
 
 @dataclass(frozen=True)

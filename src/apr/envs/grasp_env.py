@@ -1,4 +1,4 @@
-"""Gymnasium environments of APR: ``apr/ActiveGrasp-v1`` (a head camera that looks) and ``apr/PassiveGrasp-v1``
+"""Gymnasium environments of APR: ``apr/ActiveGrasp-v2`` (a head camera that looks) and ``apr/PassiveGrasp-v2``
 (three static cameras). Both share the episode logic of :class:`GraspEnv`; they differ only in how a step's
 three views are made.
 """
@@ -31,7 +31,7 @@ class GraspEnv(gym.Env):
 
     def __init__(self, *, dof: int, target: str, foveation: str, split: str, renderer: str,
                  render_mode: str | None, with_head: bool, reach_scale: float, render_size: int,
-                 reveal_target: bool, limit_in_task: bool):  # fmt: skip
+                 reveal_target: bool, limit_in_task: bool, tilted_reach: bool):  # fmt: skip
         _check_choice("dof", dof, DOFS)
         _check_render_size(render_size)
         _check_choice("foveation", foveation, FOVEATIONS)
@@ -48,7 +48,10 @@ class GraspEnv(gym.Env):
         self.limit_in_task = bool(limit_in_task)
         """The 15-step limit is part of the task (v1): it terminates the episode, and the observation has
         ``steps_left``. False (v0): the limit truncates, and the observation says nothing of time."""
-        self.world = GraspWorld(renderer, with_head=with_head, render_size=render_size)
+        self.tilted_reach = bool(tilted_reach)
+        """The workspace's lower bound holds the tool tip (v2), so that a tilted gripper can reach the grasp height;
+        False (v0, v1): it holds the end-effector link."""
+        self.world = GraspWorld(renderer, with_head=with_head, render_size=render_size, tilted_reach=tilted_reach)
 
         views, size, channels = CAMERA.views_per_step, CAMERA.image_size, 4 if self.with_mask else 3
         observation = {
@@ -227,7 +230,7 @@ class ActiveGraspEnv(GraspEnv):
     samples each render (256x256 by default) to 64x64 with the log-polar-like warp (or a plain resize).
 
     ## Arguments
-    ``gymnasium.make("apr/ActiveGrasp-v1", dof=6, target="env", foveation="logpolar", split="train",
+    ``gymnasium.make("apr/ActiveGrasp-v2", dof=6, target="env", foveation="logpolar", split="train",
     renderer="tiny")``
 
     - ``dof``: 6 (dx, dy, dz, da, db, dc) or 4 (dx, dy, dz, da; the gripper points down).
@@ -248,14 +251,22 @@ class ActiveGraspEnv(GraspEnv):
       (``docs/decisions.md``, "Views and rendering").
     - ``reveal_target``: also put the target's true centre in the observation (``fixation``; ``target="env"``
       only). Not the robot's knowledge: for scripted baselines and the labelled ``cpu-4d`` preset.
-    - ``limit_in_task``: the 15-step limit is part of the task (default; ``apr/ActiveGrasp-v1``): reaching it
-      terminates the episode and the observation has ``steps_left``. ``False`` is ``apr/ActiveGrasp-v0``, the
-      earlier task: the limit truncates, and nothing in the observation tells the time (see Episode End).
+    - ``limit_in_task``: the 15-step limit is part of the task (default; ``apr/ActiveGrasp-v1`` and ``-v2``):
+      reaching it terminates the episode and the observation has ``steps_left``. ``False`` is
+      ``apr/ActiveGrasp-v0``, the earlier task: the limit truncates, and nothing in the observation tells the time
+      (see Episode End).
+    - ``tilted_reach``: a tilted gripper can reach the grasp height (default; ``apr/ActiveGrasp-v2``): its axis
+      stays within 45 deg of vertical and the workspace's floor holds the tool tip. ``False`` is ``-v1`` and
+      ``-v0``: b and c are clipped each to 45 deg and the floor holds the end-effector link, where a gripper
+      tilted by more than about 40 deg stops above the grasp height (see Action Space).
 
     ## Action Space
     ``target="env"``: ``Box(-1, 1, (dof,), float32)``, the change of the gripper's commanded pose: position
     0.06 m per unit on each axis, Euler angles 0.25 rad per unit. ``a`` turns the gripper about its own axis,
-    ``b`` and ``c`` tilt it about the world x and y axes (clipped to +-45 deg from pointing down).
+    ``b`` and ``c`` tilt it about the world x and y axes (clipped to +-45 deg each, and in v2 scaled down together
+    so that the gripper's axis lies within 45 deg of vertical). The commanded end-effector position stays within
+    a box; its floor, z = 0.05 m, puts the tool tip at z = -0.167 m, 5 cm below the grasp height, when the gripper
+    points down, and in v2 it is lowered by as much as the tilt raises the tip.
 
     ``target="learned"``: ``Dict(fixation=Box(-1, 1, (3,)), grasp=Box(-1, 1, (dof,)))``. In the fixation phase
     only ``fixation`` is used: it maps linearly onto the workspace box x in [0.38, 0.75], y in [-0.2, 0.2],
@@ -301,7 +312,7 @@ class ActiveGraspEnv(GraspEnv):
     ## Episode End
     Terminated when a grasp is attempted: the tool tip drops to z <= -0.115 m; the fingers then close and the
     arm lifts, and the object counts as lifted when its base ends above z = 0.2 m. After 15 grasp steps without
-    an attempt the episode ends with no grasp reward: terminated in v1, where the limit is part of the task (the
+    an attempt the episode ends with no grasp reward: terminated in v1 and v2, where the limit is part of the task (the
     paper's "a fixed number of timesteps (maximum 15)") and ``steps_left`` says how near it is (Pardo et al.
     2018, "Time Limits in Reinforcement Learning"); truncated in v0 (``limit_in_task=False``).
     ``info["grasp_attempted"]`` and ``info["grasp_success"]`` tell the outcome.
@@ -310,14 +321,15 @@ class ActiveGraspEnv(GraspEnv):
     def __init__(self, dof: int = 6, target: str = "env", foveation: str = "logpolar", split: str = "train",
                  renderer: str = "tiny", render_mode: str | None = None,
                  reach_scale: float = REWARD.reach_scale, render_size: int = CAMERA.render_size,
-                 reveal_target: bool = False, limit_in_task: bool = True, initial_views: str = "drawn"):  # fmt: skip
+                 reveal_target: bool = False, limit_in_task: bool = True, initial_views: str = "drawn",
+                 tilted_reach: bool = True):  # fmt: skip
         _check_choice("initial_views", initial_views, INITIAL_VIEWS)
         self.initial_views = initial_views
         self._at_reset = False
         super().__init__(dof=dof, target=target, foveation=foveation, split=split, renderer=renderer,
                          render_mode=render_mode, with_head=True, reach_scale=reach_scale,
                          render_size=render_size, reveal_target=reveal_target,
-                         limit_in_task=limit_in_task)  # fmt: skip
+                         limit_in_task=limit_in_task, tilted_reach=tilted_reach)  # fmt: skip
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         self._at_reset = True
@@ -350,11 +362,11 @@ class PassiveGraspEnv(GraspEnv):
     attention to any object. Renders (256x256 by default) are resized to 64x64 (no log-polar warp).
 
     ## Arguments
-    ``gymnasium.make("apr/PassiveGrasp-v1", dof=6, split="train", renderer="tiny")``, as for the active env
+    ``gymnasium.make("apr/PassiveGrasp-v2", dof=6, split="train", renderer="tiny")``, as for the active env
     (``reveal_target`` too).
 
     ## Action Space
-    ``Box(-1, 1, (dof,), float32)``, as for ``apr/ActiveGrasp-v1`` with ``target="env"``.
+    ``Box(-1, 1, (dof,), float32)``, as for ``apr/ActiveGrasp-v2`` with ``target="env"``.
 
     ## Observation Space
     ``images`` uint8 (3, 64, 64, 4) (RGB and the target mask), ``viewpoints`` float32 (3, 6) (each camera's
@@ -364,18 +376,18 @@ class PassiveGraspEnv(GraspEnv):
     baselines).
 
     ## Rewards and Episode End
-    As for ``apr/ActiveGrasp-v1`` with ``target="env"``: the reach reward toward the target's centre, 1 for
+    As for ``apr/ActiveGrasp-v2`` with ``target="env"``: the reach reward toward the target's centre, 1 for
     lifting the target; terminated by a grasp attempt, and after 15 steps (v1; truncated in v0).
     """
 
     def __init__(self, dof: int = 6, split: str = "train", renderer: str = "tiny",
                  render_mode: str | None = None, reach_scale: float = REWARD.reach_scale,
                  render_size: int = CAMERA.render_size, reveal_target: bool = False,
-                 limit_in_task: bool = True):  # fmt: skip
+                 limit_in_task: bool = True, tilted_reach: bool = True):  # fmt: skip
         super().__init__(dof=dof, target="env", foveation="resize", split=split, renderer=renderer,
                          render_mode=render_mode, with_head=False, reach_scale=reach_scale,
                          render_size=render_size, reveal_target=reveal_target,
-                         limit_in_task=limit_in_task)  # fmt: skip
+                         limit_in_task=limit_in_task, tilted_reach=tilted_reach)  # fmt: skip
         self.cameras = passive_cameras()
         self._viewpoints = np.stack([np.concatenate([cam.eye, cam.forward]) for cam in self.cameras])
 

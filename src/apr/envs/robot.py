@@ -17,6 +17,19 @@ from apr.envs.config import ARM, GRASP, SCENE, ArmSpec, GraspSpec
 _POINTING_DOWN = (0.0, -math.pi, 0.0)  # Euler angles of the end-effector link when the gripper points down
 
 
+def within_tilt(b: float, c: float, max_tilt: float) -> tuple[float, float]:
+    """Tilts (b, c) scaled down together, if needed, so that the gripper's axis lies within ``max_tilt`` of
+    vertical: the angle from vertical of Euler tilts (b, c) is acos(cos b cos c)."""
+    if math.cos(b) * math.cos(c) >= math.cos(max_tilt):
+        return b, c
+    low, high = 0.0, 1.0  # bisection on the common scale
+    for _ in range(40):
+        middle = 0.5 * (low + high)
+        within = math.cos(middle * b) * math.cos(middle * c) >= math.cos(max_tilt)
+        low, high = (middle, high) if within else (low, middle)
+    return low * b, low * c
+
+
 class KukaGripper:
     """Position control of the arm through inverse kinematics, as in the benchmark's ``kuka.py``.
 
@@ -24,9 +37,17 @@ class KukaGripper:
     inverse kinematics turns it into joint targets, and the simulation moves the joints there.
     """
 
-    def __init__(self, client: BulletClient, sdf_path: str, spec: ArmSpec = ARM, grasp: GraspSpec = GRASP):
+    def __init__(self, client: BulletClient, sdf_path: str, spec: ArmSpec = ARM, grasp: GraspSpec = GRASP,
+                 tilted_reach: bool = True):  # fmt: skip
         self.client = client
         self.spec = spec
+        self.tilted_reach = tilted_reach
+        """v2: a tilted gripper can reach the grasp height. The gripper's axis stays within ``max_tilt`` of vertical
+        (b and c scaled down together where each alone is within it but both together are not), and the
+        workspace's lower bound holds the tool tip where pointing down puts it. False (v0, v1): b and c are
+        clipped each to ``max_tilt`` (together up to 60 degrees from vertical) and the lower bound holds the
+        end-effector link, so a gripper tilted by more than about 40 degrees stops above the grasp height and can
+        never attempt."""
         self.grasp_spec = grasp
         self.uid = client.loadSDF(sdf_path)[0]
         client.resetBasePositionAndOrientation(self.uid, SCENE.kuka_base_position, (0.0, 0.0, 0.0, 1.0))
@@ -49,13 +70,18 @@ class KukaGripper:
 
     def move(self, delta_position: np.ndarray, delta_angles: np.ndarray) -> None:
         """Shift the commanded pose by metres and radians (clipped to the workspace) and send joint targets."""
-        low = np.array([self.spec.workspace_x[0], self.spec.workspace_y[0], self.spec.workspace_z[0]])
-        high = np.array([self.spec.workspace_x[1], self.spec.workspace_y[1], self.spec.workspace_z[1]])
-        self.target_position = np.clip(self.target_position + delta_position, low, high)
         angles = self.target_angles + delta_angles
         angles[0] = np.clip(angles[0], -math.pi, math.pi)
         angles[1:] = np.clip(angles[1:], -self.spec.max_tilt, self.spec.max_tilt)
+        floor = self.spec.workspace_z[0]
+        if self.tilted_reach:
+            angles[1:] = within_tilt(angles[1], angles[2], self.spec.max_tilt)
+            # a tilted gripper's tip hangs less far below the link: the link may go as much lower
+            floor -= self.spec.tip_below_end_effector * (1.0 - math.cos(angles[1]) * math.cos(angles[2]))
         self.target_angles = angles
+        low = np.array([self.spec.workspace_x[0], self.spec.workspace_y[0], floor])
+        high = np.array([self.spec.workspace_x[1], self.spec.workspace_y[1], self.spec.workspace_z[1]])
+        self.target_position = np.clip(self.target_position + delta_position, low, high)
         self.send_targets()
 
     def send_targets(self) -> None:

@@ -36,15 +36,19 @@ class GraspWorld:
             its plugin loads, else TinyRenderer; never both in one process).
         with_head: load the xArm6 head (the active model); the passive model has none.
         render_size: side of every render in pixels (the paper: 256).
+        tilted_reach: the workspace's lower bound holds the tool tip, not the end-effector link
+            (:class:`apr.envs.robot.KukaGripper`).
     """
 
-    def __init__(self, renderer: str = "tiny", with_head: bool = True, render_size: int = CAMERA.render_size):
+    def __init__(self, renderer: str = "tiny", with_head: bool = True, render_size: int = CAMERA.render_size,
+                 tilted_reach: bool = True):  # fmt: skip
         with quiet_c_output():  # pybullet prints argv[0] on connect
             self.client: BulletClient | None = BulletClient(connection_mode=p.DIRECT)
         self.renderer = claim_renderer(self, renderer)
         """The renderer in use: "egl" or "tiny" ("egl" may still fall back to "tiny" at first use with "auto")."""
         self._requested = renderer
         self._with_head = with_head
+        self._tilted_reach = tilted_reach
         self.render_size = render_size
         self._built = False
         self._pool: OrderedDict[int, int] = OrderedDict()  # object number -> body uid, least recent first
@@ -74,7 +78,8 @@ class GraspWorld:
         c.loadURDF("plane.urdf", (0, 0, -1))
         self._table_uid = c.loadURDF("table/table.urdf", SCENE.table_position)
         self._tray_uid = c.loadURDF("tray/tray.urdf", SCENE.tray_position, SCENE.tray_orientation)
-        self._arm = KukaGripper(c, f"{pybullet_data.getDataPath()}/kuka_iiwa/kuka_with_gripper2.sdf")
+        self._arm = KukaGripper(c, f"{pybullet_data.getDataPath()}/kuka_iiwa/kuka_with_gripper2.sdf",
+                                tilted_reach=self._tilted_reach)  # fmt: skip
         self._head = Head(c) if self._with_head else None
         if self.renderer == "egl":
             # The EGL renderer's first frames lack the shadows of later ones; render them now, so that an

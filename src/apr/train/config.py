@@ -23,13 +23,22 @@ import tyro
 from apr.envs.grasp_env import render_size_problem
 from apr.model.config import ModelConfig
 
-ACTIVE_ENV_ID = "apr/ActiveGrasp-v1"
+ACTIVE_ENV_ID = "apr/ActiveGrasp-v2"
 """The active model's environment: the head camera that looks."""
-PASSIVE_ENV_ID = "apr/PassiveGrasp-v1"
+PASSIVE_ENV_ID = "apr/PassiveGrasp-v2"
 """The passive model's environment: three static cameras, no head, no log-polar warp."""
-EnvId = Literal["apr/ActiveGrasp-v1", "apr/PassiveGrasp-v1", "apr/ActiveGrasp-v0", "apr/PassiveGrasp-v0"]
-"""v1: the 15-step limit is part of the task (it terminates; the observation has the steps left). v0: the earlier
-task (the limit truncates, no clock), which runs saved before v1 name."""
+EnvId = Literal[
+    "apr/ActiveGrasp-v2",
+    "apr/PassiveGrasp-v2",
+    "apr/ActiveGrasp-v1",
+    "apr/PassiveGrasp-v1",
+    "apr/ActiveGrasp-v0",
+    "apr/PassiveGrasp-v0",
+]
+"""v2: the 15-step limit is part of the task (it terminates; the observation has the steps left) and a tilted
+gripper can reach the grasp height. v1: the same limit, but the workspace's floor holds the end-effector link, so a
+gripper tilted by more than about 40 degrees never reaches the grasp height; runs saved before v2 name it. v0: the
+limit truncates, no clock; runs saved before v1 name it."""
 
 
 def is_passive(env_id: str) -> bool:
@@ -122,8 +131,8 @@ class EnvConfig:
 
     @property
     def observes_steps_left(self) -> bool:
-        """The observations hold the grasp steps left: the environments' v1, whose 15-step limit is part of the task
-        (``limit_in_task``, as ``apr`` registers each version)."""
+        """The observations hold the grasp steps left: the environments' v1 and v2, whose 15-step limit is part of
+        the task (``limit_in_task``, as ``apr`` registers each version)."""
         return bool(gymnasium.spec(self.env_id).kwargs["limit_in_task"])
 
     @property
@@ -226,7 +235,7 @@ class TrainConfig:
         if self.model.heads_see_steps_left and not self.env.observes_steps_left:
             problems.append(f"--model.heads-see-steps-left needs the steps left in the observation: --env.env-id "
                             f"{self.env.env_id} is the earlier task, whose limit truncates with no clock; use its "
-                            "-v1")  # fmt: skip
+                            "-v2")  # fmt: skip
         if self.replay_capacity >= 1 and self.model.batch_size >= 1 and self.replay_capacity < self.model.batch_size:
             problems.append(f"--replay-capacity {self.replay_capacity} is smaller than one learner batch "
                             f"(--model.batch-size {self.model.batch_size}): the learner would never start")  # fmt: skip
@@ -382,14 +391,13 @@ CPU_RUN: dict[str, Any] = dict(
 )  # fmt: skip
 """The CPU presets' run: an hour of a 2-core CPU, a 30-episode evaluation every 200 grasps, 100 at the end."""
 CPU_LOOK_ENV: dict[str, Any] = dict(initial_views="fixed")
-CPU_LOOK_MODEL: dict[str, Any] = dict(fixation_critic="map", fixation_relabels=64)
-"""How a learned fixation looks at CPU scale (ours; the paper presets keep the paper's drawn initial views and
-tiled critic): the views at reset from three fixed viewpoints, so that where an object lies in the first images
-says where it lies on the tray, and the fixation bandit's critic as a map over the fixation box, whose best point
-is the deterministic look, regressing 64 relabelled points per sample, which it reads from one map at little cost
-(docs/decisions.md, "The fixation critic"; docs/benchmarks.md, "The fixation critic in training": on
-``cpu-active-learned-4d`` the look lands a median 2.9-3.2 cm from the nearest object, the tiled critic's 3.98-4.75,
-the bin centre 5.40)."""
+CPU_LOOK_MODEL: dict[str, Any] = dict(fixation_critic="map", fixation_relabels=64, fixation_proximity_radius=0.10)
+"""How a learned fixation looks at CPU scale (ours; the paper presets keep the paper's drawn initial views, tiled
+critic, 8 relabelled points and 15 cm radius): the views at reset from three fixed viewpoints, so that where an object
+lies in the first images says where it lies on the tray, and the fixation bandit's critic as a map over the fixation
+box, whose best point is the deterministic look, regressing 64 relabelled points per sample, which it reads from one
+map at little cost, with a proximity reward that falls to 0 at 10 cm (docs/decisions.md, "The fixation critic";
+docs/benchmarks.md, "The fixation critic in training")."""
 TABLE1_CPU_GRASPS = 600
 """The grasp budget of every row of Table 1 at CPU scale (ours): where the recipe's learned-fixation run levels off
 on the 2-core CPU (its held-out success at 200, 400 and 600 grasps: 63, 67 and 65% for seed 0; docs/benchmarks.md,
@@ -412,9 +420,10 @@ def with_recipe(config: TrainConfig) -> TrainConfig:
 
 
 SCALE_FREE_MODEL_FIELDS = ("representation", "heads_see_proprioception", "heads_see_fixation", "heads_see_steps_left",
-                           "init_temperature", "fixation_reward", "fixation_proximity_radius")  # fmt: skip
+                           "init_temperature", "fixation_reward")  # fmt: skip
 """Model fields a scale keeps: the structure (the ablation switch) and the recipe. The rest are sizes, speed and,
-with a learned fixation, how it looks (:data:`CPU_LOOK_MODEL`: the critic and its relabelled points)."""
+with a learned fixation, how it looks (:data:`CPU_LOOK_MODEL`: the critic, its relabelled points and the proximity
+reward's radius)."""
 
 
 def cpu_scale(name: str, config: TrainConfig) -> TrainConfig:

@@ -29,7 +29,7 @@ class ReplaySpec:
     """3 where the observations hold a fixation point (learned fixation, ``reveal_target``), else 0."""
     fixation_action_dim: int = 3
     steps_left: bool = False
-    """The observations hold the steps left (the environments' v1)."""
+    """The observations hold the steps left (the environments' v1 and v2)."""
     max_objects: int = 5
     """Object centres stored per fixation sample (the scene at the fixation action; padded with NaN)."""
 
