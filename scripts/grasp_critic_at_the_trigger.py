@@ -5,7 +5,9 @@ evaluation. At every step it also asks its own critics (min of the twins) what t
 what the same action is worth with the gripper sent fully down (dz = -1, 6 cm: from within 6 cm of the trigger, an
 attempt), and how often the stochastic policy's samples would cross the trigger there. Whether a policy that hovers
 above the trigger does so because its critic values hovering more (a value problem) or although the critic values
-the attempt more (an actor problem) is then read off the episodes. The tool tip and target come from ``info``, as a
+the attempt more (an actor problem) is then read off the episodes. The share of samples that would cross assumes the
+gripper moves as commanded: a gripper held up (by the workspace's floor, the tray or an object) pushes down without
+descending, which the tool tip's height from step to step shows. The tool tip and target come from ``info``, as a
 probe may; the heads see what they see in training.
 
     python scripts/grasp_critic_at_the_trigger.py results/gqn-anneal2000/cpu-active-target__s0
@@ -31,8 +33,6 @@ from apr.model.agent import Observation
 from apr.reproduce.policies import load_policy
 from apr.train.evaluation import EVAL_SEED
 
-STEP_M = 0.06
-"""m the commanded position moves per unit of action (the environments' Action Space)."""
 SAMPLES = 64
 """Samples of the stochastic policy per step, for the share that would cross the trigger."""
 
@@ -73,9 +73,9 @@ def main(args: Args) -> None:
                 "to_target_xy_cm": round(100 * to_target, 1),
                 "dz": round(float(deterministic[0, 2]), 2), "dz_std": round(float(log_std[0, 2].exp()), 2),
                 "q_det": round(float(q_det), 3), "q_down": round(float(q_down), 3),
-                "sample_cross": round(float((samples[:, 2] * STEP_M < -above).float().mean()), 2),
+                "sample_cross": round(float((samples[:, 2] * GRASP.position_step < -above).float().mean()), 2),
             })  # fmt: skip
-            if 0 < above < STEP_M:
+            if 0 < above < GRASP.position_step:
                 summary["hover_q_det"].append(float(q_det))
                 summary["hover_q_down"].append(float(q_down))
                 summary["hover_sample_cross"].append(steps[-1]["sample_cross"])
