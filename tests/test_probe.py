@@ -68,6 +68,7 @@ def test_a_probe_of_an_untrained_encoder_writes_its_entries(tmp_path, one_thread
         assert entry["checkpoint"] == "untrained:smoke" and (entry["train_scenes"], entry["heldout_scenes"]) == (10, 4)
         assert entry["heldout_median_cm"] >= 0 and entry["constant_median_cm"] > 0
         assert (entry["initial_views"], entry["encoder_init"]) == ("fixed", "he")  # the smoke preset's
+        assert ("heldout_refined_cm" in entry) == (entry["label"] in probe.MAP_LABELS)
     run(args)  # again, from the cached scenes: the same entries replace the old ones
     assert len(json.loads(path.read_text())) == 6
     with pytest.raises(ConfigError, match="have only nearest_object_xy, nearest_object_map, object_map"):
@@ -135,3 +136,18 @@ def test_the_nearest_object_map_peaks_at_that_object_alone_and_is_scored_against
     between_cm = 100 * float(np.linalg.norm(objects[0] - objects[1]))
     assert probe.error_cm("object_map", look_at_the_other, None, scenes) == 0.0
     assert probe.error_cm("nearest_object_map", look_at_the_other, None, scenes) == pytest.approx(between_cm, abs=0.01)
+
+
+def test_a_refined_look_finds_an_object_between_the_lattice_points() -> None:
+    """An object midway between four lattice points: the map's lattice peak is half a cell's diagonal away (about
+    2 cm), the peak refined within its cell (as the map critic reads its best point) nearer."""
+    lattice = probe.map_points().reshape(probe.MAP_GRID, probe.MAP_GRID, 2)
+    between = (0.5 * (lattice[5, 6] + lattice[6, 7]))[None]  # (1, 2)
+    maps = torch.from_numpy(probe.object_map(between)[None]).float()
+    object_xy = between[None].astype(np.float32)  # (1, 1, 2)
+    lattice_cm, refined_cm = (probe.look_error_cm(maps, object_xy, refined) for refined in (False, True))
+    half_diagonal_cm = 50 * np.linalg.norm(lattice[6, 7] - lattice[5, 6])
+    assert lattice_cm == pytest.approx(half_diagonal_cm, abs=0.01)
+    assert refined_cm < 0.5 * lattice_cm
+    on_a_point = torch.from_numpy(probe.object_map(lattice[3, 4][None])[None]).float()  # at a lattice point: kept
+    np.testing.assert_allclose(probe.map_peaks(on_a_point, refined=True), lattice[3, 4][None], atol=1e-9)

@@ -31,7 +31,7 @@ class GraspEnv(gym.Env):
 
     def __init__(self, *, dof: int, target: str, foveation: str, split: str, renderer: str,
                  render_mode: str | None, with_head: bool, reach_scale: float, render_size: int,
-                 reveal_target: bool, limit_in_task: bool, tilted_reach: bool):  # fmt: skip
+                 reveal_target: bool, limit_in_task: bool, tilted_reach: bool, tilt_about_tip: bool):  # fmt: skip
         _check_choice("dof", dof, DOFS)
         _check_render_size(render_size)
         _check_choice("foveation", foveation, FOVEATIONS)
@@ -51,7 +51,12 @@ class GraspEnv(gym.Env):
         self.tilted_reach = bool(tilted_reach)
         """The workspace's lower bound holds the tool tip (v2), so that a tilted gripper can reach the grasp height;
         False (v0, v1): it holds the end-effector link."""
-        self.world = GraspWorld(renderer, with_head=with_head, render_size=render_size, tilted_reach=tilted_reach)
+        if tilt_about_tip and not tilted_reach:
+            raise ValueError("tilt_about_tip needs tilted_reach (v3 builds on v2)")
+        self.tilt_about_tip = bool(tilt_about_tip)
+        """A change of tilt turns the gripper about its tool tip (v3); False (v0-v2): about the end-effector link."""
+        self.world = GraspWorld(renderer, with_head=with_head, render_size=render_size, tilted_reach=tilted_reach,
+                                tilt_about_tip=tilt_about_tip)  # fmt: skip
 
         views, size, channels = CAMERA.views_per_step, CAMERA.image_size, 4 if self.with_mask else 3
         observation = {
@@ -259,6 +264,9 @@ class ActiveGraspEnv(GraspEnv):
       stays within 45 deg of vertical and the workspace's floor holds the tool tip. ``False`` is ``-v1`` and
       ``-v0``: b and c are clipped each to 45 deg and the floor holds the end-effector link, where a gripper
       tilted by more than about 40 deg stops above the grasp height (see Action Space).
+    - ``tilt_about_tip``: a change of tilt turns the gripper about its tool tip (default; ``apr/ActiveGrasp-v3``),
+      so that the position and the tilt actions move the tip apart. ``False`` is ``-v2`` and before: the gripper
+      turns about its wrist, and a tilt alone swings the tip by up to 15 cm sideways.
 
     ## Action Space
     ``target="env"``: ``Box(-1, 1, (dof,), float32)``, the change of the gripper's commanded pose: position
@@ -266,7 +274,9 @@ class ActiveGraspEnv(GraspEnv):
     ``b`` and ``c`` tilt it about the world x and y axes (clipped to +-45 deg each, and in v2 scaled down together
     so that the gripper's axis lies within 45 deg of vertical). The commanded end-effector position stays within
     a box; its floor, z = 0.05 m, puts the tool tip at z = -0.167 m, 5 cm below the grasp height, when the gripper
-    points down, and in v2 it is lowered by as much as the tilt raises the tip.
+    points down, and in v2 it is lowered by as much as the tilt raises the tip. In v3 a change of tilt turns the
+    gripper about its tool tip: the commanded position moves with the link around the tip, and the box holds the
+    tip (the box above is where the link sits pointing down).
 
     ``target="learned"``: ``Dict(fixation=Box(-1, 1, (3,)), grasp=Box(-1, 1, (dof,)))``. In the fixation phase
     only ``fixation`` is used: it maps linearly onto the workspace box x in [0.38, 0.75], y in [-0.2, 0.2],
@@ -322,14 +332,15 @@ class ActiveGraspEnv(GraspEnv):
                  renderer: str = "tiny", render_mode: str | None = None,
                  reach_scale: float = REWARD.reach_scale, render_size: int = CAMERA.render_size,
                  reveal_target: bool = False, limit_in_task: bool = True, initial_views: str = "drawn",
-                 tilted_reach: bool = True):  # fmt: skip
+                 tilted_reach: bool = True, tilt_about_tip: bool = True):  # fmt: skip
         _check_choice("initial_views", initial_views, INITIAL_VIEWS)
         self.initial_views = initial_views
         self._at_reset = False
         super().__init__(dof=dof, target=target, foveation=foveation, split=split, renderer=renderer,
                          render_mode=render_mode, with_head=True, reach_scale=reach_scale,
                          render_size=render_size, reveal_target=reveal_target,
-                         limit_in_task=limit_in_task, tilted_reach=tilted_reach)  # fmt: skip
+                         limit_in_task=limit_in_task, tilted_reach=tilted_reach,
+                         tilt_about_tip=tilt_about_tip)  # fmt: skip
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         self._at_reset = True
@@ -383,11 +394,12 @@ class PassiveGraspEnv(GraspEnv):
     def __init__(self, dof: int = 6, split: str = "train", renderer: str = "tiny",
                  render_mode: str | None = None, reach_scale: float = REWARD.reach_scale,
                  render_size: int = CAMERA.render_size, reveal_target: bool = False,
-                 limit_in_task: bool = True, tilted_reach: bool = True):  # fmt: skip
+                 limit_in_task: bool = True, tilted_reach: bool = True, tilt_about_tip: bool = True):  # fmt: skip
         super().__init__(dof=dof, target="env", foveation="resize", split=split, renderer=renderer,
                          render_mode=render_mode, with_head=False, reach_scale=reach_scale,
                          render_size=render_size, reveal_target=reveal_target,
-                         limit_in_task=limit_in_task, tilted_reach=tilted_reach)  # fmt: skip
+                         limit_in_task=limit_in_task, tilted_reach=tilted_reach,
+                         tilt_about_tip=tilt_about_tip)  # fmt: skip
         self.cameras = passive_cameras()
         self._viewpoints = np.stack([np.concatenate([cam.eye, cam.forward]) for cam in self.cameras])
 

@@ -38,9 +38,11 @@ class KukaGripper:
     """
 
     def __init__(self, client: BulletClient, sdf_path: str, spec: ArmSpec = ARM, grasp: GraspSpec = GRASP,
-                 tilted_reach: bool = True):  # fmt: skip
+                 tilted_reach: bool = True, tilt_about_tip: bool = True):  # fmt: skip
         self.client = client
         self.spec = spec
+        if tilt_about_tip and not tilted_reach:
+            raise ValueError("tilt_about_tip needs tilted_reach (v3 builds on v2)")
         self.tilted_reach = tilted_reach
         """v2: a tilted gripper can reach the grasp height. The gripper's axis stays within ``max_tilt`` of vertical
         (b and c scaled down together where each alone is within it but both together are not), and the
@@ -48,6 +50,11 @@ class KukaGripper:
         clipped each to ``max_tilt`` (together up to 60 degrees from vertical) and the lower bound holds the
         end-effector link, so a gripper tilted by more than about 40 degrees stops above the grasp height and can
         never attempt."""
+        self.tilt_about_tip = tilt_about_tip
+        """v3: a change of tilt turns the gripper about its tool tip, and the workspace box holds the tip: the
+        commanded end-effector position moves by as much as the tilt moves the link around the tip. False (v0-v2):
+        the tilt turns the gripper about the end-effector link, and the tip swings by up to
+        ``tip_below_end_effector`` sin(45 deg), 15 cm, sideways."""
         self.grasp_spec = grasp
         self.uid = client.loadSDF(sdf_path)[0]
         client.resetBasePositionAndOrientation(self.uid, SCENE.kuka_base_position, (0.0, 0.0, 0.0, 1.0))
@@ -70,19 +77,31 @@ class KukaGripper:
 
     def move(self, delta_position: np.ndarray, delta_angles: np.ndarray) -> None:
         """Shift the commanded pose by metres and radians (clipped to the workspace) and send joint targets."""
+        before = self.target_angles
         angles = self.target_angles + delta_angles
         angles[0] = np.clip(angles[0], -math.pi, math.pi)
         angles[1:] = np.clip(angles[1:], -self.spec.max_tilt, self.spec.max_tilt)
-        floor = self.spec.workspace_z[0]
+        low = np.array([self.spec.workspace_x[0], self.spec.workspace_y[0], self.spec.workspace_z[0]])
+        high = np.array([self.spec.workspace_x[1], self.spec.workspace_y[1], self.spec.workspace_z[1]])
         if self.tilted_reach:
             angles[1:] = within_tilt(angles[1], angles[2], self.spec.max_tilt)
             # a tilted gripper's tip hangs less far below the link: the link may go as much lower
-            floor -= self.spec.tip_below_end_effector * (1.0 - math.cos(angles[1]) * math.cos(angles[2]))
+            low[2] -= self.spec.tip_below_end_effector * (1.0 - math.cos(angles[1]) * math.cos(angles[2]))
+        if self.tilt_about_tip:
+            shift = self.link_shift(angles)
+            delta_position = delta_position + shift - self.link_shift(before)  # the tip stays where it was
+            low[:2] += shift[:2]  # the box holds the tip (its floor does already)
+            high += shift
         self.target_angles = angles
-        low = np.array([self.spec.workspace_x[0], self.spec.workspace_y[0], floor])
-        high = np.array([self.spec.workspace_x[1], self.spec.workspace_y[1], self.spec.workspace_z[1]])
         self.target_position = np.clip(self.target_position + delta_position, low, high)
         self.send_targets()
+
+    def link_shift(self, angles: np.ndarray) -> np.ndarray:
+        """(3,) m: where the end-effector link sits relative to the tool tip with the tilts of ``angles`` (a, b, c),
+        less where it sits pointing down, (0, 0, ``tip_below_end_effector``); exactly 0 pointing down."""
+        tilt = self.client.getQuaternionFromEuler((angles[1], angles[2], 0.0))
+        rotation = np.array(self.client.getMatrixFromQuaternion(tilt)).reshape(3, 3)
+        return (rotation[:, 2] - (0.0, 0.0, 1.0)) * self.spec.tip_below_end_effector
 
     def send_targets(self) -> None:
         """Solve inverse kinematics for the commanded pose and set every motor's target."""

@@ -38,10 +38,11 @@ class GraspWorld:
         render_size: side of every render in pixels (the paper: 256).
         tilted_reach: the workspace's lower bound holds the tool tip, not the end-effector link
             (:class:`apr.envs.robot.KukaGripper`).
+        tilt_about_tip: a change of tilt turns the gripper about its tool tip, not the end-effector link.
     """
 
     def __init__(self, renderer: str = "tiny", with_head: bool = True, render_size: int = CAMERA.render_size,
-                 tilted_reach: bool = True):  # fmt: skip
+                 tilted_reach: bool = True, tilt_about_tip: bool = True):  # fmt: skip
         with quiet_c_output():  # pybullet prints argv[0] on connect
             self.client: BulletClient | None = BulletClient(connection_mode=p.DIRECT)
         self.renderer = claim_renderer(self, renderer)
@@ -49,6 +50,7 @@ class GraspWorld:
         self._requested = renderer
         self._with_head = with_head
         self._tilted_reach = tilted_reach
+        self._tilt_about_tip = tilt_about_tip
         self.render_size = render_size
         self._built = False
         self._pool: OrderedDict[int, int] = OrderedDict()  # object number -> body uid, least recent first
@@ -79,7 +81,7 @@ class GraspWorld:
         self._table_uid = c.loadURDF("table/table.urdf", SCENE.table_position)
         self._tray_uid = c.loadURDF("tray/tray.urdf", SCENE.tray_position, SCENE.tray_orientation)
         self._arm = KukaGripper(c, f"{pybullet_data.getDataPath()}/kuka_iiwa/kuka_with_gripper2.sdf",
-                                tilted_reach=self._tilted_reach)  # fmt: skip
+                                tilted_reach=self._tilted_reach, tilt_about_tip=self._tilt_about_tip)  # fmt: skip
         self._head = Head(c) if self._with_head else None
         if self.renderer == "egl":
             # The EGL renderer's first frames lack the shadows of later ones; render them now, so that an

@@ -413,19 +413,7 @@ class APRAgent:
                     query_images = torch.cat([query_images, fix_images])
                     query_poses = torch.cat([query_poses, fix_poses])
                     r_gqn = torch.cat([r_gqn, r_fix[:n_fix_gqn]])
-                noise = torch.randn(
-                    self.generator.noise_shape(len(r_gqn), r.shape[-1]),
-                    generator=self.rng,
-                    device=self.device,
-                )
-                losses["gqn/elbo"], gqn_metrics = gqn_elbo_loss(
-                    self._generator,
-                    r_gqn,
-                    query_poses[:, 0],
-                    query_images[:, 0],
-                    pixel_sigma(step, config),
-                    noise,
-                )
+                losses["gqn/elbo"], gqn_metrics = self._elbo(r_gqn, query_images[:, 0], query_poses[:, 0], step)
                 metrics.update(gqn_metrics)
 
             # Stop-gradient: the RL losses see r detached, except the ablation's critics.
@@ -463,6 +451,14 @@ class APRAgent:
                 )
                 metrics.update({f"fixation/{k}": v for k, v in m.items()})
         return losses, metrics
+
+    def _elbo(self, r: torch.Tensor, query_images: torch.Tensor, query_poses: torch.Tensor,
+              step: int) -> tuple[torch.Tensor, Metrics]:  # fmt: skip
+        """The generator's negative ELBO of query views (B, C, 64, 64) at poses (B, P) given r (B, R, 16, 16), at the
+        pixel sigma of update ``step``."""
+        assert self._generator is not None
+        noise = torch.randn(self.generator.noise_shape(len(r), r.shape[-1]), generator=self.rng, device=self.device)
+        return gqn_elbo_loss(self._generator, r, query_poses, query_images, pixel_sigma(step, self.config), noise)
 
     def _bandit_targets(self, batch: FixationBatch) -> tuple[torch.Tensor, torch.Tensor]:
         """The fixation critic's (action, reward) pairs per sample: (B, K, 3) and (B, K). With the grasp reward,
@@ -505,6 +501,32 @@ class APRAgent:
             result["gqn/sigma"] = pixel_sigma(step, self.config)
             result["gqn/lr"] = gqn_learning_rate(step, self.config)
         return result
+
+    def gqn_update(self, obs: Observation, step: int) -> dict[str, float]:
+        """One step of the encoder and generator alone: the ELBO of a batch of observations, each with a random query
+        view and the other two as the context, as in :meth:`update` but without the policies (GQN training on scenes
+        before the first grasp). ``step`` counts these updates (the sigma and learning-rate schedules).
+
+        Returns:
+            the ELBO's metrics by name (gqn/elbo_loss, gqn/nll, gqn/kl, gqn/mse) and gqn/sigma, gqn/lr.
+        """
+        if "gqn" not in self.optimizers:
+            raise RuntimeError("the 'w/o representation' ablation has no generator")
+        obs = obs.to(self.device)
+        with self._autocast():
+            context, query = self._split_context_query(len(obs))
+            r = self._scene(obs, context, with_grad=len(obs))
+            query_images, query_poses = self._views(obs, query)
+            loss, metrics = self._elbo(r, query_images[:, 0], query_poses[:, 0], step)
+        optimizer = self.optimizers["gqn"]
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        for group in optimizer.param_groups:
+            group["lr"] = gqn_learning_rate(step, self.config)
+        optimizer.step()
+        values = torch.stack([v.float() for v in metrics.values()]).tolist()
+        return {**dict(zip(metrics.keys(), values, strict=True)), "gqn/sigma": pixel_sigma(step, self.config),
+                "gqn/lr": gqn_learning_rate(step, self.config)}  # fmt: skip
 
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict[str, Any]:

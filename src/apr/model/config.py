@@ -67,6 +67,11 @@ class ModelConfig:
     gqn_anneal_updates: int = 200_000
     """Updates over which sigma and the GQN learning rate anneal linearly (paper/Eslami: 2e5 for sigma;
     one length for both here so a shorter run scales them together; set it to the run's length)."""
+    gqn_init: str = ""
+    """The encoder's and generator's starting weights. "" (paper): fresh ones. Else (ours) GQN weights trained on the
+    benchmark's scenes before any grasp, by packaged name (``apr/model/pretrained/NAME.pt``) or path; a new run loads
+    them once, before its first grasp (:mod:`apr.model.pretrained`; docs/decisions.md, "GQN training before the
+    first grasp")."""
     gqn_batch_size: int = 36
     """Grasp-step observations per update that train the ELBO, the first ones of the grasp batch
     (Eslami et al. 2018: batch 36)."""

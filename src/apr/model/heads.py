@@ -178,31 +178,36 @@ class TwinCritic(nn.Module):
 
     def best_xy(self, r: torch.Tensor) -> torch.Tensor:
         """Map critics only: the critics' best x, y per sample, (B, 2) in [-1, 1]: the lattice point of the highest
-        value of min(Q1, Q2), moved within its cell to the peak of a parabola through it and its two neighbours
-        along each axis (sub-pixel peak refinement, as heatmap keypoint detectors read a place finer than their
-        grid). The lattice is 3.4 x 3.6 cm at 12 points a side; the interpolated Q itself peaks at a lattice point,
-        so the lattice alone rounds every look to it. At the map's edge, or where the values do not curve down
-        along an axis, the lattice coordinate is kept."""
+        value of min(Q1, Q2), refined within its cell (:func:`refined_peak`). The lattice is 3.4 x 3.6 cm at 12
+        points a side; the interpolated Q itself peaks at a lattice point, so the lattice alone rounds every look to
+        it."""
         if not isinstance(self.q1, MapCritic):
             raise TypeError("only a map critic has a best point")
         values = torch.minimum(self.q1.value_map(r), self.q2.value_map(r))  # (B, G, G)
-        size = self.q1.map_grid
-        best = values.flatten(1).argmax(dim=1)
-        row, column = best // size, best % size
-        samples = torch.arange(len(values), device=r.device)
+        return refined_peak(values) * (2.0 / (self.q1.map_grid - 1)) - 1.0
 
-        def offset(index: torch.Tensor, value_at: Callable[[torch.Tensor], torch.Tensor]) -> torch.Tensor:
-            """The parabola's peak, in cells from ``index``, along one axis (0 at the edge or without a peak)."""
-            inside = (index > 0) & (index < size - 1)
-            before, here, after = (value_at((index + step).clamp(0, size - 1)) for step in (-1, 0, 1))
-            curvature = before - 2 * here + after
-            peak = 0.5 * (before - after) / torch.where(curvature < 0, curvature, -torch.ones_like(curvature))
-            return torch.where(inside & (curvature < 0), peak.clamp(-0.5, 0.5), torch.zeros_like(peak))
 
-        row_offset = offset(row, lambda index: values[samples, index, column])
-        column_offset = offset(column, lambda index: values[samples, row, index])
-        cell = 2.0 / (size - 1)
-        return torch.stack([(row + row_offset) * cell - 1.0, (column + column_offset) * cell - 1.0], dim=-1)
+def refined_peak(values: torch.Tensor) -> torch.Tensor:
+    """The peak of each map (B, G, G), (B, 2) in lattice units (row, column; fractional): the lattice point of the
+    highest value, moved within its cell to the peak of a parabola through it and its two neighbours along each axis
+    (sub-pixel peak refinement, as heatmap keypoint detectors read a place finer than their grid). At the map's
+    edge, or where the values do not curve down along an axis, the lattice coordinate is kept."""
+    size = values.shape[-1]
+    best = values.flatten(1).argmax(dim=1)
+    row, column = best // size, best % size
+    samples = torch.arange(len(values), device=values.device)
+
+    def offset(index: torch.Tensor, value_at: Callable[[torch.Tensor], torch.Tensor]) -> torch.Tensor:
+        """The parabola's peak, in cells from ``index``, along one axis (0 at the edge or without a peak)."""
+        inside = (index > 0) & (index < size - 1)
+        before, here, after = (value_at((index + step).clamp(0, size - 1)) for step in (-1, 0, 1))
+        curvature = before - 2 * here + after
+        peak = 0.5 * (before - after) / torch.where(curvature < 0, curvature, -torch.ones_like(curvature))
+        return torch.where(inside & (curvature < 0), peak.clamp(-0.5, 0.5), torch.zeros_like(peak))
+
+    row_offset = offset(row, lambda index: values[samples, index, column])
+    column_offset = offset(column, lambda index: values[samples, row, index])
+    return torch.stack([row + row_offset, column + column_offset], dim=-1)
 
 
 class PolicyHeads(nn.Module):

@@ -23,6 +23,7 @@ import tyro
 from apr.envs.rendering import EGL_INSTALL, resolve
 from apr.machine import machine_description
 from apr.model.agent import APRAgent
+from apr.model.pretrained import load_gqn_init
 from apr.reproduce.runs import blind_eval_files, final_eval
 from apr.train.checkpoints import CheckpointError, newest_intact, read_checkpoint
 from apr.train.config import TrainConfig, preset
@@ -63,17 +64,24 @@ def new_agent(config: TrainConfig) -> APRAgent:
     return APRAgent(config.model.replace(compile=False, device="auto"))
 
 
+def starting_agent(config: TrainConfig) -> APRAgent:
+    """The agent a run of ``config`` starts from: fresh weights, and the GQN's ``gqn_init`` if it names one."""
+    agent = new_agent(config)
+    load_gqn_init(agent)
+    return agent
+
+
 def untrained_snapshot(preset_name: str = UNTRAINED_PRESET, seed: int = 0) -> PolicySnapshot:
     """A freshly initialised agent of ``preset_name``: an UNTRAINED policy, labelled so."""
     config = dataclasses.replace(preset(preset_name), seed=seed).resolved()
     label = f"UNTRAINED policy (fresh weights of the {preset_name} preset, seed {seed}; 0 grasps of training)"
-    return PolicySnapshot(new_agent(config), config, 0, label, trained=False, source=f"preset {preset_name}")
+    return PolicySnapshot(starting_agent(config), config, 0, label, trained=False, source=f"preset {preset_name}")
 
 
 def initial_snapshot(config: TrainConfig, run_name: str) -> PolicySnapshot:
     """The run's agent before training: the run's configuration and seed give the run's initial weights."""
     label = f"run {run_name} at 0 grasps (its initial, untrained weights)"
-    return PolicySnapshot(new_agent(config), config, 0, label, trained=False, source=run_name)
+    return PolicySnapshot(starting_agent(config), config, 0, label, trained=False, source=run_name)
 
 
 def run_checkpoints(run_dir: Path) -> list[Path]:

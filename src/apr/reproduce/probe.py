@@ -47,13 +47,15 @@ from apr.envs.config import OBJECTS, SCENE
 from apr.model.agent import APRAgent, Observation
 from apr.model.config import ModelConfig
 from apr.model.encoder import TowerEncoder, encode_scene, images_to_float
-from apr.model.heads import SpatialSoftArgmax, conv_block
+from apr.model.heads import SpatialSoftArgmax, conv_block, refined_peak
 from apr.reproduce.policies import load_policy, untrained_snapshot
 from apr.train.config import ConfigError, EnvConfig
 
 LABELS = ("nearest_object_xy", "nearest_object_map", "object_map", "target_xy", "tip_target_offset")
 SCENE_LABELS = ("nearest_object_xy", "nearest_object_map", "object_map")
 """The labels of every kind of scene; the environment's target adds the rest."""
+MAP_LABELS = ("nearest_object_map", "object_map")
+"""The labels that are maps over the drop area: their error is that of a look at the map's highest point."""
 DERIVED_LABELS = ("nearest_object_map",)
 """Labels :class:`Scenes` derives from the others when it is made: never written to the scene cache."""
 READOUTS = ("linear", "head", "spatial", "end_to_end")
@@ -245,8 +247,8 @@ def encode(agent: APRAgent, scenes: Scenes, batch: int = 64) -> torch.Tensor:
 
 def fit_linear(features: torch.Tensor, labels: torch.Tensor, heldout: torch.Tensor, folds: int = 5) -> torch.Tensor:
     """Ridge regression of ``labels`` (N, D) on the flattened ``features`` (N, ...), its strength chosen by
-    ``folds``-fold cross-validation on the training scenes; returns the predictions for ``heldout`` (M, D).
-    The dual form (an N x N system) keeps it exact and cheap when features outnumber scenes."""
+    ``folds``-fold cross-validation on the training scenes; returns the predictions for ``heldout`` (M, D), on the
+    features' device. The dual form (an N x N system) keeps it exact and cheap when features outnumber scenes."""
     x, x_heldout = features.flatten(1).double(), heldout.flatten(1).double()
     mean, scale = x.mean(0), x.std(0).clamp_min(1e-8)
     x, x_heldout = (x - mean) / scale, (x_heldout - mean) / scale
@@ -255,11 +257,12 @@ def fit_linear(features: torch.Tensor, labels: torch.Tensor, heldout: torch.Tens
 
     def solve(train_x: torch.Tensor, train_y: torch.Tensor, strength: float) -> torch.Tensor:
         gram = train_x @ train_x.T
-        dual = torch.linalg.solve(gram + strength * torch.eye(len(gram), dtype=gram.dtype), train_y - y_mean)
+        identity = torch.eye(len(gram), dtype=gram.dtype, device=gram.device)
+        dual = torch.linalg.solve(gram + strength * identity, train_y - y_mean)
         return train_x.T @ dual  # (F, D)
 
     strengths = [x.shape[1] * factor for factor in (1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0)]
-    fold = torch.arange(len(x)) % folds
+    fold = torch.arange(len(x), device=x.device) % folds
     errors = []
     for strength in strengths:
         error = 0.0
@@ -289,14 +292,14 @@ class Readout(nn.Module):
 
 
 def train_regressor(predict: Callable[[torch.Tensor], torch.Tensor], parameters: list[nn.Parameter],
-                    inputs: int, labels: torch.Tensor, steps: int, seed: int) -> None:  # fmt: skip
-    """Adam on the mean squared error of standardised ``labels`` (N, D); ``predict`` maps sample indices (B,) to
-    standardised predictions (B, D)."""
+                    inputs: int, labels: torch.Tensor, steps: int, seed: int, batch: int = 32) -> None:  # fmt: skip
+    """Adam on the mean squared error of standardised ``labels`` (N, D), on their device; ``predict`` maps sample
+    indices (B,) (on the CPU) to standardised predictions (B, D)."""
     generator = torch.Generator().manual_seed(seed)
     optimizer = torch.optim.Adam(parameters, lr=1e-3, weight_decay=1e-4)
     for _ in range(steps):
-        index = torch.randint(inputs, (32,), generator=generator)
-        loss = ((predict(index) - labels[index]) ** 2).mean()
+        index = torch.randint(inputs, (batch,), generator=generator)
+        loss = ((predict(index) - labels[index.to(labels.device)]) ** 2).mean()
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
@@ -315,28 +318,30 @@ def fit_head(features: torch.Tensor, labels: torch.Tensor, heldout: torch.Tensor
 
 
 def fit_end_to_end(config: ModelConfig, train: Scenes, labels: torch.Tensor, heldout: Scenes, steps: int,
-                   seed: int) -> torch.Tensor:  # fmt: skip
-    """The upper bound: a fresh encoder of ``config``'s architecture and a :class:`Readout`, trained together from
-    the images and poses of views 0 and 1 to ``labels``; predictions for ``heldout`` (M, D)."""
+                   seed: int, device: torch.device | str = "cpu", batch: int = 32) -> torch.Tensor:  # fmt: skip
+    """The upper bound: a fresh encoder of ``config``'s architecture and a :class:`Readout`, trained together on
+    ``device`` from the images and poses of views 0 and 1 to ``labels``; predictions for ``heldout`` (M, D), on the
+    CPU."""
     torch.manual_seed(seed)
     encoder = TowerEncoder(config.image_channels, config.pose_dim, config.encoder_channels,
                            config.encoder_narrow_channels, config.representation_channels,
-                           config.encoder_init)  # fmt: skip
+                           config.encoder_init).to(device)  # fmt: skip
     readout = Readout(config.representation_channels, tuple(config.head_channels), config.image_size // 4,
-                      labels.shape[1])  # fmt: skip
+                      labels.shape[1]).to(device)  # fmt: skip
+    labels = labels.to(device)
     mean, scale = labels.mean(0), labels.std(0).clamp_min(1e-6)
 
     def predict(scenes: Scenes, index: torch.Tensor | slice) -> torch.Tensor:
-        observation = scenes.observation(index if isinstance(index, slice) else index.numpy())
+        observation = scenes.observation(index if isinstance(index, slice) else index.numpy()).to(device)
         images = images_to_float(observation.images[:, :2]).contiguous()
         return readout(encode_scene(encoder, images, observation.poses()[:, :2]))
 
     parameters = [*encoder.parameters(), *readout.parameters()]
     train_regressor(lambda index: predict(train, index), parameters, len(train), (labels - mean) / scale, steps,
-                    seed)  # fmt: skip
+                    seed, batch)  # fmt: skip
     with torch.no_grad():
         parts = [predict(heldout, slice(start, start + 64)) for start in range(0, len(heldout), 64)]
-        return torch.cat(parts) * scale + mean
+        return (torch.cat(parts) * scale + mean).cpu()
 
 
 def median_cm(predictions: torch.Tensor, labels: torch.Tensor) -> float:
@@ -344,21 +349,34 @@ def median_cm(predictions: torch.Tensor, labels: torch.Tensor) -> float:
     return round(100 * float((predictions - labels).norm(dim=1).median()), 2)
 
 
-def look_error_cm(maps: torch.Tensor, object_xy: np.ndarray) -> float:
+def map_peaks(maps: torch.Tensor, refined: bool = False) -> np.ndarray:
+    """The xy (m) of each predicted map's highest point, (M, 2), from maps (M, MAP_GRID ** 2): its lattice point, or
+    with ``refined`` that point moved within its cell as the map critic reads its best point (:func:`refined_peak`)."""
+    if not refined:
+        return map_points()[maps.argmax(dim=1).numpy()]
+    lattice = map_points().reshape(MAP_GRID, MAP_GRID, 2)
+    step = lattice[1, 1] - lattice[0, 0]  # (dx, dy) between neighbouring points
+    return lattice[0, 0] + refined_peak(maps.reshape(-1, MAP_GRID, MAP_GRID)).double().numpy() * step
+
+
+def look_error_cm(maps: torch.Tensor, object_xy: np.ndarray, refined: bool = False) -> float:
     """The error of predicted maps (M, MAP_GRID ** 2): the median over scenes of the xy distance (cm) from each map's
-    highest point to the nearest of its scene's objects (``object_xy``: (M, K, 2), NaN rows for none)."""
-    looked = map_points()[maps.argmax(dim=1).numpy()]  # (M, 2)
+    highest point (:func:`map_peaks`) to the nearest of its scene's objects (``object_xy``: (M, K, 2), NaN rows for
+    none)."""
+    looked = map_peaks(maps, refined)  # (M, 2)
     distance = np.linalg.norm(looked[:, None] - object_xy, axis=-1)  # (M, K), NaN for padding
     return round(100 * float(np.median(np.nanmin(distance, axis=1))), 2)
 
 
-def error_cm(label: str, predictions: torch.Tensor, labels: torch.Tensor, scenes: Scenes) -> float:
+def error_cm(label: str, predictions: torch.Tensor, labels: torch.Tensor, scenes: Scenes,
+             refined: bool = False) -> float:  # fmt: skip
     """A label's held-out error in cm: :func:`look_error_cm` for the maps (``object_map`` against every object,
-    ``nearest_object_map`` against the nearest object alone), else :func:`median_cm`."""
+    ``nearest_object_map`` against the nearest object alone; ``refined``: their peaks refined within the lattice
+    cell), else :func:`median_cm`."""
     if label == "object_map":
-        return look_error_cm(predictions, scenes.object_xy)
+        return look_error_cm(predictions, scenes.object_xy, refined)
     if label == "nearest_object_map":
-        return look_error_cm(predictions, scenes.labels["nearest_object_xy"][:, None])
+        return look_error_cm(predictions, scenes.labels["nearest_object_xy"][:, None], refined)
     return median_cm(predictions, labels)
 
 
@@ -380,10 +398,18 @@ def probe_entries(agent: APRAgent, train: Scenes, heldout: Scenes, checkpoint: s
                                      spatial=readout == "spatial")  # fmt: skip
             else:
                 predicted = fit_end_to_end(agent.config, train, y_train, heldout, steps, seed)
-            entries.append({"checkpoint": checkpoint, "label": label, "readout": readout,
-                            "heldout_median_cm": error_cm(label, predicted, y_heldout, heldout),
-                            "constant_median_cm": constant,
-                            "train_scenes": len(train), "heldout_scenes": len(heldout)})  # fmt: skip
+            entry = {
+                "checkpoint": checkpoint,
+                "label": label,
+                "readout": readout,
+                "heldout_median_cm": error_cm(label, predicted, y_heldout, heldout),
+                "constant_median_cm": constant,
+                "train_scenes": len(train),
+                "heldout_scenes": len(heldout),
+            }
+            if label in MAP_LABELS:  # the peak refined within its lattice cell, as the map critic reads its own
+                entry["heldout_refined_cm"] = error_cm(label, predicted, y_heldout, heldout, refined=True)
+            entries.append(entry)
     return entries
 
 
@@ -459,7 +485,8 @@ def run(args: ProbeArgs) -> Path:
     temporary.write_text(json.dumps(kept + entries, indent=2) + "\n")
     temporary.replace(path)
     for entry in entries:
-        print(f"{entry['label']:>18} {entry['readout']:>10}: {entry['heldout_median_cm']:6.2f} cm held out "
+        refined = f", {entry['heldout_refined_cm']:.2f} refined" if "heldout_refined_cm" in entry else ""
+        print(f"{entry['label']:>18} {entry['readout']:>10}: {entry['heldout_median_cm']:6.2f} cm held out{refined} "
               f"(constant {entry['constant_median_cm']:.2f} cm)")  # fmt: skip
     print(f"wrote {path}")
     return path

@@ -21,6 +21,7 @@ import gymnasium
 import tyro
 
 from apr.envs.grasp_env import render_size_problem
+from apr.model import pretrained
 from apr.model.config import ModelConfig
 
 ACTIVE_ENV_ID = "apr/ActiveGrasp-v2"
@@ -30,15 +31,18 @@ PASSIVE_ENV_ID = "apr/PassiveGrasp-v2"
 EnvId = Literal[
     "apr/ActiveGrasp-v2",
     "apr/PassiveGrasp-v2",
+    "apr/ActiveGrasp-v3",
+    "apr/PassiveGrasp-v3",
     "apr/ActiveGrasp-v1",
     "apr/PassiveGrasp-v1",
     "apr/ActiveGrasp-v0",
     "apr/PassiveGrasp-v0",
 ]
-"""v2: the 15-step limit is part of the task (it terminates; the observation has the steps left) and a tilted
-gripper can reach the grasp height. v1: the same limit, but the workspace's floor holds the end-effector link, so a
-gripper tilted by more than about 40 degrees never reaches the grasp height; runs saved before v2 name it. v0: the
-limit truncates, no clock; runs saved before v1 name it."""
+"""v3: as v2, and a change of tilt turns the gripper about its tool tip rather than its wrist (measured against v2
+before the presets take it). v2: the 15-step limit is part of the task (it terminates; the observation has the steps
+left) and a tilted gripper can reach the grasp height. v1: the same limit, but the workspace's floor holds the
+end-effector link, so a gripper tilted by more than about 40 degrees never reaches the grasp height; runs saved
+before v2 name it. v0: the limit truncates, no clock; runs saved before v1 name it."""
 
 
 def is_passive(env_id: str) -> bool:
@@ -246,6 +250,7 @@ class TrainConfig:
         if self.backend == "ray" and self.workers == 0:
             problems.append("--workers 0 means this machine's cores; with --backend ray give the number of "
                             "environment actors to spread over the cluster (at most its CPUs)")  # fmt: skip
+        problems += pretrained.problems(self.model)
         device = self.model.device
         if device.startswith("cuda"):
             import torch

@@ -30,6 +30,7 @@ import torch
 from tqdm import tqdm
 
 from apr.model.agent import APRAgent, FixationBatch, GraspBatch, Observation
+from apr.model.pretrained import load_gqn_init
 from apr.train.checkpoints import (
     CheckpointError,
     RunLock,
@@ -177,6 +178,7 @@ class Trainer:
             raise ConfigError(f"the replay buffer ({need / 2**30:.1f} GiB) does not fit in memory: lower "
                               f"--replay-capacity (now {config.replay_capacity:,})") from None  # fmt: skip
         self.agent = APRAgent(config.model)
+        load_gqn_init(self.agent)  # a resumed run's checkpoint then replaces them
         if self.agent.device.type == "cpu":  # leave the env workers their cores (docs/decisions.md)
             torch.set_num_threads(max(1, (os.cpu_count() or 1) - config.workers))
         self.rng = np.random.default_rng(config.seed)
