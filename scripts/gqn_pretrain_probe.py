@@ -37,6 +37,8 @@ from apr.reproduce.probe import (
     error_cm,
     fit_end_to_end,
     fit_linear,
+    load_scenes,
+    save_scenes,
 )
 from apr.train.config import preset
 
@@ -105,34 +107,7 @@ def render(args: Args, env_config) -> tuple[Scenes, Scenes]:
     with multiprocessing.get_context("spawn").Pool(args.processes) as pool:
         train = pool.map(render_share, shares("train", args.train_scenes, PROBE_SEED))
         heldout = pool.map(render_share, shares("test", args.heldout_scenes, PROBE_SEED + HELDOUT_OFFSET))
-    return join(train), join(heldout)
-
-
-def join(parts: list[Scenes]) -> Scenes:
-    return Scenes(np.concatenate([p.images for p in parts]), np.concatenate([p.viewpoints for p in parts]),
-                  np.concatenate([p.gripper for p in parts]),
-                  {name: np.concatenate([p.labels[name] for p in parts]) for name in parts[0].labels
-                   if name != "nearest_object_map"},
-                  np.concatenate([p.object_xy for p in parts]))  # fmt: skip
-
-
-def subset(scenes: Scenes, count: int) -> Scenes:
-    return Scenes(scenes.images[:count], scenes.viewpoints[:count], scenes.gripper[:count],
-                  {name: value[:count] for name, value in scenes.labels.items() if name != "nearest_object_map"},
-                  scenes.object_xy[:count])  # fmt: skip
-
-
-def save_scenes(scenes: Scenes, path: Path) -> None:
-    np.savez(path, images=scenes.images, viewpoints=scenes.viewpoints, gripper=scenes.gripper,
-             object_xy=scenes.object_xy,
-             **{f"label_{k}": v for k, v in scenes.labels.items() if k != "nearest_object_map"})  # fmt: skip
-
-
-def load_scenes(path: Path) -> Scenes:
-    with np.load(path) as data:
-        return Scenes(data["images"], data["viewpoints"], data["gripper"],
-                      {n.removeprefix("label_"): data[n] for n in data.files if n.startswith("label_")},
-                      data["object_xy"])  # fmt: skip
+    return Scenes.concatenate(train), Scenes.concatenate(heldout)
 
 
 def record(out: Path, entry: dict) -> None:
@@ -159,7 +134,7 @@ def linear_probe(agent: APRAgent, probe_train: Scenes, heldout: Scenes) -> dict[
 def gqn_job(variant: str, args: Args, scenes_path: Path, deadline: float) -> None:
     torch.set_num_threads(2)
     train, heldout = load_scenes(scenes_path / "train.npz"), load_scenes(scenes_path / "heldout.npz")
-    probe_train = subset(train, args.probe_scenes)
+    probe_train = train.take(slice(args.probe_scenes))
     config = preset(args.preset).model.replace(device=args.device, gqn_anneal_updates=args.updates,
                                                **VARIANTS[variant])  # fmt: skip
     agent = APRAgent(config)
@@ -199,7 +174,7 @@ def upper_bound_job(args: Args, scenes_path: Path, deadline: float) -> None:
             if time.time() > deadline:
                 return
             started = time.time()
-            part = subset(train, count)
+            part = train.take(slice(count))
             y_train, y_heldout = torch.from_numpy(part.labels[label]), torch.from_numpy(heldout.labels[label])
             predicted = fit_end_to_end(config, part, y_train, heldout, args.upper_bound_steps, 0, args.device, 64)
             record(args.out, {"job": "end_to_end", "label": label, "train_scenes": count,

@@ -151,3 +151,28 @@ def test_a_refined_look_finds_an_object_between_the_lattice_points() -> None:
     assert refined_cm < 0.5 * lattice_cm
     on_a_point = torch.from_numpy(probe.object_map(lattice[3, 4][None])[None]).float()  # at a lattice point: kept
     np.testing.assert_allclose(probe.map_peaks(on_a_point, refined=True), lattice[3, 4][None], atol=1e-9)
+
+
+def test_scenes_survive_a_file_and_slicing_and_joining_derive_their_map_again(tmp_path) -> None:
+    rng = np.random.default_rng(0)
+    count = 4
+    nearest = rng.uniform(-0.1, 0.1, (count, 2)).astype(np.float32)
+    scenes = probe.Scenes(rng.integers(0, 255, (count, 3, 64, 64, 3), dtype=np.uint8),
+                          rng.normal(size=(count, 3, 6)).astype(np.float32),
+                          rng.normal(size=(count, 9)).astype(np.float32),
+                          {"nearest_object_xy": nearest},
+                          rng.normal(size=(count, probe.MAX_OBJECTS, 2)).astype(np.float32))  # fmt: skip
+    probe.save_scenes(scenes, tmp_path / "scenes.npz")
+    loaded = probe.load_scenes(tmp_path / "scenes.npz")
+    joined = probe.Scenes.concatenate([loaded.take(slice(0, 1)), loaded.take(slice(1, None))])
+    for copy in (loaded, joined):
+        assert len(copy) == count
+        np.testing.assert_array_equal(copy.images, scenes.images)
+        np.testing.assert_array_equal(copy.object_xy, scenes.object_xy)
+        for name in ("nearest_object_xy", "nearest_object_map"):
+            np.testing.assert_array_equal(copy.labels[name], scenes.labels[name])
+    np.testing.assert_array_equal(loaded.take(slice(2)).labels["nearest_object_map"],
+                                  scenes.labels["nearest_object_map"][:2])  # fmt: skip
+    (tmp_path / "damaged.npz").write_bytes(b"not a file of scenes")
+    with pytest.raises((OSError, ValueError)):
+        probe.load_scenes(tmp_path / "damaged.npz")

@@ -151,6 +151,22 @@ class Scenes:
     def __len__(self) -> int:
         return len(self.images)
 
+    def take(self, index: np.ndarray | slice) -> Scenes:
+        """The scenes at ``index``, their derived labels derived again."""
+        return Scenes(self.images[index], self.viewpoints[index], self.gripper[index],
+                      {name: value[index] for name, value in self.labels.items() if name not in DERIVED_LABELS},
+                      None if self.object_xy is None else self.object_xy[index])  # fmt: skip
+
+    @staticmethod
+    def concatenate(parts: list[Scenes]) -> Scenes:
+        """The scenes of ``parts``, in order."""
+        return Scenes(np.concatenate([part.images for part in parts]),
+                      np.concatenate([part.viewpoints for part in parts]),
+                      np.concatenate([part.gripper for part in parts]),
+                      {name: np.concatenate([part.labels[name] for part in parts]) for name in parts[0].labels
+                       if name not in DERIVED_LABELS},
+                      np.concatenate([part.object_xy for part in parts]))  # fmt: skip
+
 
 # ------------------------------------------------------------------------------------------------ scenes
 def scene_labels(info: dict, target: str) -> dict[str, np.ndarray]:
@@ -210,20 +226,9 @@ def _random_steps(env, observation, info, rng: np.random.Generator, dof: int):
     return observation, info
 
 
-def cached_scenes(env_config: EnvConfig, split: str, count: int, first_seed: int, cache: Path) -> Scenes:
-    """:func:`collect_scenes`, kept in ``cache`` (an interrupted or damaged file is rendered again)."""
-    key = json.dumps([dataclasses.asdict(env_config), split, count, first_seed], sort_keys=True)
-    path = cache / f"{split}_{count}_{hashlib.sha256(key.encode()).hexdigest()[:16]}.npz"
-    if path.exists():
-        try:
-            with np.load(path) as data:
-                return Scenes(data["images"], data["viewpoints"], data["gripper"],
-                              {name.removeprefix("label_"): data[name] for name in data.files
-                               if name.startswith("label_")}, data["object_xy"])  # fmt: skip
-        except (OSError, ValueError, KeyError) as error:
-            tqdm.write(f"{path} is unreadable ({error}): rendering its scenes again")
-    scenes = collect_scenes(env_config, split, count, first_seed)
-    cache.mkdir(parents=True, exist_ok=True)
+def save_scenes(scenes: Scenes, path: Path) -> None:
+    """Write ``scenes`` to the ``.npz`` file ``path`` whole or not at all (through a temporary file); the derived
+    labels are left out, :class:`Scenes` derives them again."""
     temporary = path.with_name(path.name + ".tmp")
     with open(temporary, "wb") as file:
         np.savez(file, images=scenes.images, viewpoints=scenes.viewpoints, gripper=scenes.gripper,
@@ -231,6 +236,28 @@ def cached_scenes(env_config: EnvConfig, split: str, count: int, first_seed: int
                  **{f"label_{name}": value for name, value in scenes.labels.items()
                     if name not in DERIVED_LABELS})  # fmt: skip
     temporary.replace(path)
+
+
+def load_scenes(path: Path) -> Scenes:
+    """The scenes :func:`save_scenes` wrote (``OSError``, ``ValueError`` or ``KeyError`` for a damaged file)."""
+    with np.load(path) as data:
+        return Scenes(data["images"], data["viewpoints"], data["gripper"],
+                      {name.removeprefix("label_"): data[name] for name in data.files if name.startswith("label_")},
+                      data["object_xy"])  # fmt: skip
+
+
+def cached_scenes(env_config: EnvConfig, split: str, count: int, first_seed: int, cache: Path) -> Scenes:
+    """:func:`collect_scenes`, kept in ``cache`` (an interrupted or damaged file is rendered again)."""
+    key = json.dumps([dataclasses.asdict(env_config), split, count, first_seed], sort_keys=True)
+    path = cache / f"{split}_{count}_{hashlib.sha256(key.encode()).hexdigest()[:16]}.npz"
+    if path.exists():
+        try:
+            return load_scenes(path)
+        except (OSError, ValueError, KeyError) as error:
+            tqdm.write(f"{path} is unreadable ({error}): rendering its scenes again")
+    scenes = collect_scenes(env_config, split, count, first_seed)
+    cache.mkdir(parents=True, exist_ok=True)
+    save_scenes(scenes, path)
     return scenes
 
 
