@@ -504,3 +504,22 @@ def test_the_shipped_demo_runs_a_trained_policy_that_follows_the_observation_rul
     assert snapshot.trained and "packaged checkpoint" in snapshot.label
     assert not snapshot.config.env.reveal_target
     assert "given another scene's images" in snapshot.training  # its blind numbers are shown beside its success
+
+
+def test_a_probe_of_a_runs_initial_weights_reads_the_encoder_it_started_from(run_dir: Path, tmp_path: Path,
+                                                                            monkeypatch) -> None:  # fmt: skip
+    from apr.reproduce import probe
+
+    encoded = []
+    real_encode = probe.encode
+    monkeypatch.setattr(probe, "encode", lambda agent, scenes: encoded.append(agent) or real_encode(agent, scenes))
+    args = probe.ProbeArgs(source=f"initial:{run_dir}", train_scenes=4, heldout_scenes=2, labels=("object_map",),
+                           readouts=("linear",), out=tmp_path / "out", cache=tmp_path / "cache", threads=2)  # fmt: skip
+    path = probe.run(args)
+    assert path == tmp_path / "out" / f"initial-{run_dir.name}" / "probe.json"
+    assert json.loads(path.read_text())[0]["checkpoint"] == f"initial:{run_dir}"
+    trained = policies.load_policy(run_dir)
+    fresh = policies.starting_agent(trained.config)
+    probed = encoded[0].encoder.state_dict()
+    assert all(torch.equal(value, fresh.encoder.state_dict()[name]) for name, value in probed.items())
+    assert not all(torch.equal(value, trained.agent.encoder.state_dict()[name]) for name, value in probed.items())

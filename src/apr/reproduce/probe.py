@@ -48,7 +48,7 @@ from apr.model.agent import APRAgent, Observation
 from apr.model.config import ModelConfig
 from apr.model.encoder import TowerEncoder, encode_scene, images_to_float
 from apr.model.heads import SpatialSoftArgmax, conv_block, refined_peak
-from apr.reproduce.policies import load_policy, untrained_snapshot
+from apr.reproduce.policies import initial_snapshot, load_policy, untrained_snapshot
 from apr.train.config import ConfigError, EnvConfig
 
 LABELS = ("nearest_object_xy", "nearest_object_map", "object_map", "target_xy", "tip_target_offset")
@@ -66,6 +66,7 @@ HELDOUT_OFFSET = 500_000
 MAX_RANDOM_STEPS = 6
 """Environment-target scenes are taken after 0 to this many random grasp steps, so the tool tip varies."""
 UNTRAINED_PREFIX = "untrained:"
+INITIAL_PREFIX = "initial:"
 MAP_GRID = 12
 """Points per side of ``object_map``: 2.8 cm apart over the drop area."""
 MAP_RADIUS = 0.06
@@ -94,9 +95,10 @@ class ProbeArgs:
     an upper bound trained end to end; writes results/probe/NAME/probe.json."""
 
     source: Annotated[str, tyro.conf.Positional]
-    """A run folder, a checkpoint file, or ``untrained:PRESET`` (fresh weights of a preset)."""
+    """A run folder, a checkpoint file, ``untrained:PRESET`` (fresh weights of a preset) or ``initial:RUN`` (the run
+    folder's weights before its first grasp: its seed's fresh weights, with the GQN it started from if any)."""
     name: str = ""
-    """The folder under ``--out``; default: the run's folder name, or ``untrained-PRESET``."""
+    """The folder under ``--out``; default: the run's folder name, ``untrained-PRESET`` or ``initial-RUN``."""
     out: Path = Path("results/probe")
     """Parent folder of the probes' folders."""
     train_scenes: int = 500
@@ -458,8 +460,8 @@ def problems(args: ProbeArgs) -> list[str]:
               if label not in LABELS]  # fmt: skip
     found += [f"--readouts: unknown readout {readout!r}; the readouts are {', '.join(READOUTS)}"
               for readout in args.readouts if readout not in READOUTS]  # fmt: skip
-    if not args.source.startswith(UNTRAINED_PREFIX) and not Path(args.source).exists():
-        found.append(f"{args.source} does not exist (a run folder, a checkpoint, or untrained:PRESET)")
+    if not args.source.startswith(UNTRAINED_PREFIX) and not Path(args.source.removeprefix(INITIAL_PREFIX)).exists():
+        found.append(f"{args.source} does not exist (a run folder, a checkpoint, untrained:PRESET or initial:RUN)")
     return found
 
 
@@ -476,6 +478,10 @@ def run(args: ProbeArgs) -> Path:
         except ValueError as error:
             raise ConfigError(str(error)) from None
         name = args.name or f"untrained-{preset_name}"
+    elif args.source.startswith(INITIAL_PREFIX):
+        run_dir = Path(args.source.removeprefix(INITIAL_PREFIX))
+        snapshot = initial_snapshot(load_policy(run_dir).config, run_dir.name)
+        name = args.name or f"initial-{run_dir.name}"
     else:
         snapshot = load_policy(Path(args.source))
         source = Path(args.source)
