@@ -50,6 +50,7 @@ from apr.model.encoder import TowerEncoder, encode_scene, images_to_float
 from apr.model.heads import SpatialSoftArgmax, conv_block, refined_peak
 from apr.reproduce.policies import initial_snapshot, load_policy, untrained_snapshot
 from apr.train.config import ConfigError, EnvConfig
+from apr.train.trainer import Trainer
 
 LABELS = ("nearest_object_xy", "nearest_object_map", "object_map", "target_xy", "tip_target_offset")
 SCENE_LABELS = ("nearest_object_xy", "nearest_object_map", "object_map")
@@ -480,7 +481,7 @@ def run(args: ProbeArgs) -> Path:
         name = args.name or f"untrained-{preset_name}"
     elif args.source.startswith(INITIAL_PREFIX):
         run_dir = Path(args.source.removeprefix(INITIAL_PREFIX))
-        snapshot = initial_snapshot(load_policy(run_dir).config, run_dir.name)
+        snapshot = initial_snapshot(Trainer.saved_config(run_dir), run_dir.name)  # config.json: no checkpoint needed
         name = args.name or f"initial-{run_dir.name}"
     else:
         snapshot = load_policy(Path(args.source))
