@@ -136,6 +136,8 @@ class GraspBatch:
     terminated: torch.Tensor
     """(B,) bool/float: 1 when the episode ended (no bootstrap): by a grasp attempt or, in v1, at the 15-step limit,
     which is part of the task; 0 otherwise, and at v0's truncation, which bootstraps."""
+    steps: torch.Tensor | None = None
+    """(B,) environment steps from obs to next_obs (``ModelConfig.n_step``); None: one for every transition."""
 
 
 @dataclass
@@ -428,6 +430,7 @@ class APRAgent:
                 grasp_batch.terminated.float(),
                 config.gamma,
                 self.rng,
+                grasp_batch.steps,
             )
             metrics.update({f"grasp/{k}": v for k, v in m.items()})
             losses["grasp/actor"], log_prob, m = sac_actor_loss(self.grasp, r_actor, self.rng)

@@ -107,6 +107,10 @@ class ModelConfig:
     """Adam learning rate of actors, critics and temperatures (Haarnoja et al. 2018)."""
     gamma: float = 0.99
     """Discount of the grasp policy (Haarnoja et al. 2018). The fixation bandit has no bootstrap."""
+    n_step: int = 1
+    """Environment steps a grasp critic's target sums rewards over before it bootstraps (n-step returns, Sutton and
+    Barto 2018 section 7.1; Hessel et al. 2018 use 3): 1 is the one-step target of SAC (Haarnoja et al. 2018). An
+    episode's end cuts the sum short."""
     tau: float = 0.005
     """Polyak rate of the soft target-critic update (Haarnoja et al. 2018)."""
     init_temperature: float = 1.0

@@ -40,15 +40,18 @@ def sac_critic_loss(
     terminated: torch.Tensor,
     gamma: float,
     generator: torch.Generator | None = None,
+    steps: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, Metrics]:
     """Soft Bellman residual of both critics.
 
-    target = reward + gamma (1 - terminated) (min_j Q'_j(r', a') - alpha log pi(a' | r')), a' ~ pi(. | r').
-    Truncated transitions (the 15-step limit) have terminated = 0 and bootstrap from their final r'.
+    target = reward + gamma^steps (1 - terminated) (min_j Q'_j(r', a') - alpha log pi(a' | r')), a' ~ pi(. | r').
+    Truncated transitions (v0's 15-step limit) have terminated = 0 and bootstrap from their final r'.
 
     Args:
         r: (B, R, 16, 16), detached unless the "w/o representation" ablation trains the encoder here.
-        action: (B, A); reward: (B,); r_next: (B, R, 16, 16); terminated: (B,) in {0, 1}.
+        action: (B, A); reward: (B,), over an n-step transition the discounted sum of its rewards;
+        r_next: (B, R, 16, 16); terminated: (B,) in {0, 1}.
+        steps: (B,) environment steps from r to r_next (n-step returns); None: 1 for every transition.
 
     Returns:
         0.5 * sum_j mean (Q_j - target)^2 and metrics.
@@ -58,7 +61,8 @@ def sac_critic_loss(
         next_action, next_log_prob = heads.actor.sample(r_next, generator)
         next_q = torch.min(*heads.critic_target(r_next, next_action))
         soft_value = next_q - heads.log_alpha.exp() * next_log_prob
-        target = reward + gamma * (1.0 - terminated.float()) * soft_value
+        discount = gamma if steps is None else gamma ** steps.float()
+        target = reward + discount * (1.0 - terminated.float()) * soft_value
     q1, q2 = heads.critic(r, action)
     loss = 0.5 * ((q1 - target) ** 2).mean() + 0.5 * ((q2 - target) ** 2).mean()
     return loss, {"critic_loss": loss.detach(), "q": q1.mean().detach(), "target_q": target.mean()}

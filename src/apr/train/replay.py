@@ -1,7 +1,9 @@
 """Replay memory: every observation stored once, as uint8 images, and transitions that point at them.
 
-A grasp transition (obs, action, reward, next_obs, terminated) refers to two *frames*; consecutive transitions
-of an episode share one, so an episode of n steps takes n + 1 frames instead of 2n. Frames and transitions are
+A grasp transition (obs, action, reward, next_obs, terminated, steps) refers to two *frames*; consecutive
+transitions of an episode share one, so an episode of n steps takes n + 1 frames instead of 2n. ``steps`` is how
+many environment steps lie between the two frames (1, or up to n for n-step returns, whose reward is then the
+discounted sum over them). Frames and transitions are
 rings: when a frame is overwritten, the transitions still pointing at it are no longer sampled (each frame
 remembers when it was written, each transition when its frames were). The fixation policy's bandit samples
 (bin-centre observation, fixation action, the episode's grasp reward) live beside them and point at frames too.
@@ -86,12 +88,13 @@ class ReplayBuffer:
         self.capacity = capacity
         self.frames = FrameRing(capacity + capacity // 2, spec)
         self.fixation_capacity = max(capacity // 4, 1)
-        # grasp transitions: frame slots and stamps of obs and next obs, action, reward, terminated
+        # grasp transitions: frame slots and stamps of obs and next obs, action, reward, terminated, steps between
         self.t_frames = np.zeros((capacity, 2), np.int64)
         self.t_stamps = np.full((capacity, 2), -1, np.int64)
         self.t_action = np.zeros((capacity, spec.grasp_action_dim), np.float32)
         self.t_reward = np.zeros(capacity, np.float32)
         self.t_terminated = np.zeros(capacity, np.float32)
+        self.t_steps = np.ones(capacity, np.int16)  # ones: a replay file written before n-step returns loads as 1-step
         self.t_count = 0
         # fixation samples
         self.f_frame = np.zeros(self.fixation_capacity, np.int64)
@@ -106,7 +109,7 @@ class ReplayBuffer:
         """Memory the buffer allocates for ``capacity`` (what ``__init__`` will take)."""
         poses = int(np.prod(spec.viewpoint_shape)) + spec.gripper_dim + spec.fixation_dim
         frame = int(np.prod(spec.image_shape)) + 4 * poses + 8 + spec.steps_left
-        transition = 8 * 4 + 4 * (spec.grasp_action_dim + 2)
+        transition = 8 * 4 + 4 * (spec.grasp_action_dim + 2) + 2
         fixation = 16 + 4 * (spec.fixation_action_dim + 1 + 3 * spec.max_objects)
         return (capacity + capacity // 2) * frame + capacity * transition + max(capacity // 4, 1) * fixation
 
@@ -116,13 +119,16 @@ class ReplayBuffer:
         return self.frames.add(observation)
 
     def add_transition(self, obs_ref: tuple[int, int], action: np.ndarray, reward: float,
-                       next_ref: tuple[int, int], terminated: bool) -> None:  # fmt: skip
+                       next_ref: tuple[int, int], terminated: bool, steps: int = 1) -> None:  # fmt: skip
+        """A grasp transition from the frame ``obs_ref`` to ``next_ref``, ``steps`` environment steps later, with the
+        (discounted) reward collected over them."""
         i = self.t_count % self.capacity
         self.t_frames[i] = obs_ref[0], next_ref[0]
         self.t_stamps[i] = obs_ref[1], next_ref[1]
         self.t_action[i] = action
         self.t_reward[i] = reward
         self.t_terminated[i] = float(terminated)
+        self.t_steps[i] = steps
         self.t_count += 1
 
     def add_fixation(self, obs_ref: tuple[int, int], action: np.ndarray, reward: float,
@@ -156,7 +162,7 @@ class ReplayBuffer:
         return len(self._valid_fixations())
 
     def sample_grasp(self, batch_size: int, rng: np.random.Generator) -> dict[str, np.ndarray | dict]:
-        """Uniform grasp transitions: obs and next_obs dicts of arrays, action, reward, terminated."""
+        """Uniform grasp transitions: obs and next_obs dicts of arrays, action, reward, terminated, steps."""
         index = rng.choice(self._valid_transitions(), size=batch_size)
         return {
             "obs": self.frames.batch(self.t_frames[index, 0]),
@@ -164,6 +170,7 @@ class ReplayBuffer:
             "reward": self.t_reward[index],
             "next_obs": self.frames.batch(self.t_frames[index, 1]),
             "terminated": self.t_terminated[index],
+            "steps": self.t_steps[index],
         }
 
     def sample_fixation(self, batch_size: int, rng: np.random.Generator) -> dict[str, np.ndarray | dict]:

@@ -188,7 +188,7 @@ class Trainer:
         """What the training images so far came from: "egl", "tiny", or "mixed" (the workers did not agree, or a
         resume changed it); "" before the workers first answer. Saved in every checkpoint, and evaluations of its
         policy are checked against it."""
-        self._recorder = _Recorder(self.replay)
+        self._recorder = _Recorder(self.replay, config.model.n_step, config.model.gamma)
         self._stop_requested = False
         self._lock: RunLock | None = None
         if not _resuming:  # a new run: make (or take) its folder, lock it, save the configuration
@@ -398,6 +398,7 @@ class Trainer:
             reward=torch.from_numpy(grasp["reward"]).to(device),
             next_obs=Observation.from_env(grasp["next_obs"], device),
             terminated=torch.from_numpy(grasp["terminated"]).to(device),
+            steps=torch.from_numpy(grasp["steps"]).to(device) if model.n_step > 1 else None,
         )
         if not self.config.env.learned_fixation or self.replay.num_fixations() == 0:
             return grasp_batch, None
@@ -542,16 +543,24 @@ class Trainer:
 
 
 class _Recorder:
-    """Turns worker answers into replay entries: frames, grasp transitions, and fixation samples."""
+    """Turns worker answers into replay entries: frames, grasp transitions, and fixation samples.
 
-    def __init__(self, replay: ReplayBuffer):
-        self.replay = replay
+    With n-step returns (``n_step`` > 1) a step's transition waits until n steps of its episode have followed it,
+    or the episode ended, and is then stored from its frame to the frame reached, with the discounted sum of the
+    rewards between (Sutton and Barto 2018, section 7.1). A lost episode's waiting steps are dropped with it.
+    """
+
+    def __init__(self, replay: ReplayBuffer, n_step: int = 1, gamma: float = 0.99):
+        self.replay, self.n_step, self.gamma = replay, n_step, gamma
         self.last_frame: dict[int, tuple[int, int]] = {}
         self.fixation: dict[int, tuple[tuple[int, int], np.ndarray, np.ndarray | None]] = {}
+        self.waiting: dict[int, list[tuple[tuple[int, int], np.ndarray, float]]] = {}
+        """Per worker: the (frame, action, reward) of steps not yet stored, oldest first."""
 
     def on_reset(self, worker: int, observation: dict) -> None:
         self.last_frame[worker] = self.replay.add_frame(observation)
         self.fixation.pop(worker, None)
+        self.waiting[worker] = []
 
     def on_fixation(self, worker: int, action: np.ndarray, result: StepResult) -> None:
         self.fixation[worker] = (self.last_frame[worker], action, result.info.get("object_centres"))
@@ -559,8 +568,15 @@ class _Recorder:
 
     def on_step(self, worker: int, action: np.ndarray, result: StepResult) -> None:
         next_frame = self.replay.add_frame(result.observation)
-        self.replay.add_transition(self.last_frame[worker], action, result.reward, next_frame, result.terminated)
+        waiting = self.waiting.setdefault(worker, [])
+        waiting.append((self.last_frame[worker], action, result.reward))
         self.last_frame[worker] = next_frame
+        ended = result.terminated or result.truncated
+        while waiting and (ended or len(waiting) == self.n_step):
+            frame, first_action, _ = waiting[0]
+            reward = sum(self.gamma**k * step_reward for k, (_, _, step_reward) in enumerate(waiting))
+            self.replay.add_transition(frame, first_action, reward, next_frame, result.terminated, len(waiting))
+            waiting.pop(0)
 
     def on_end(self, worker: int, result: EpisodeResult) -> None:
         if worker in self.fixation:  # the bandit's grasp reward: the episode's sparse grasp reward only
