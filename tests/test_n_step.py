@@ -3,12 +3,10 @@ target over n steps, against hand-computed values."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 import torch
-from test_sac import CHANNELS, GRID, tiny_heads
+from test_sac import CHANNELS, GRID, heads_with_constant_target
 
 from apr.model import sac_critic_loss
 from apr.train.config import ConfigError, preset
@@ -87,11 +85,7 @@ def test_a_lost_episode_s_waiting_steps_are_dropped_and_workers_do_not_mix() -> 
 def test_the_critic_target_discounts_the_bootstrap_by_gamma_to_the_steps() -> None:
     """Target critics that answer 2.0 everywhere and a temperature of ~0: the target is R + 0.99^k * 2.0 where the
     episode goes on after k steps, and R where it ended."""
-    heads = tiny_heads(4)
-    heads.log_alpha.data.fill_(math.log(1e-12))
-    for critic in (heads.critic_target.q1, heads.critic_target.q2):
-        critic.out.weight.data.zero_()
-        critic.out.bias.data.fill_(2.0)
+    heads = heads_with_constant_target(4)
     reward = torch.tensor([0.5, 0.5, 0.5, 1.2])
     terminated = torch.tensor([0.0, 0.0, 0.0, 1.0])
     steps = torch.tensor([1, 2, 3, 3], dtype=torch.int16)

@@ -24,6 +24,17 @@ def tiny_heads(action_dim: int, seed: int = 0, **kwargs: object) -> PolicyHeads:
     return PolicyHeads(CHANNELS, action_dim, channels=(8, 8, 8), grid=GRID, **kwargs)  # type: ignore[arg-type]
 
 
+def heads_with_constant_target(action_dim: int, value: float = 2.0) -> PolicyHeads:
+    """Tiny heads whose target critics answer ``value`` everywhere, with a temperature of ~0: a critic target is then
+    reward + discount * value where the episode goes on, and reward where it ended."""
+    heads = tiny_heads(action_dim)
+    heads.log_alpha.data.fill_(math.log(1e-12))
+    for critic in (heads.critic_target.q1, heads.critic_target.q2):
+        critic.out.weight.data.zero_()
+        critic.out.bias.data.fill_(value)
+    return heads
+
+
 def test_squashed_log_prob_matches_the_change_of_variables() -> None:
     heads = tiny_heads(4)
     r = torch.randn(64, CHANNELS, GRID, GRID)

@@ -4,13 +4,11 @@ the clock; and a learner with that target and clock attempts an irreversible act
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 import torch
 from conftest import ACTIVE
-from test_sac import CHANNELS, GRID, tiny_heads
+from test_sac import CHANNELS, GRID, heads_with_constant_target
 
 from apr.model import sac_critic_loss
 from apr.model.agent import APRAgent, GraspBatch, Observation
@@ -44,11 +42,7 @@ def test_replay_stores_the_limit_as_terminal_in_v1_and_as_a_cut_in_v0(make_env, 
 def test_the_critic_target_at_the_limit_at_a_grasp_and_at_an_ordinary_step() -> None:
     """Target critics that answer 2.0 everywhere and a temperature of ~0: the target is r + 0.99 * 2.0 where the
     episode goes on, and r where it ended, by a grasp or (v1) at the limit; v0's limit bootstraps like a step."""
-    heads = tiny_heads(4)
-    heads.log_alpha.data.fill_(math.log(1e-12))
-    for critic in (heads.critic_target.q1, heads.critic_target.q2):
-        critic.out.weight.data.zero_()
-        critic.out.bias.data.fill_(2.0)
+    heads = heads_with_constant_target(4)
     #                      ordinary step, grasp (lifted), v1 limit, v0 limit (truncated)
     reward = torch.tensor([0.05, 1.03, 0.02, 0.02])
     terminated = torch.tensor([0.0, 1.0, 1.0, 0.0])
