@@ -145,6 +145,7 @@ def test_the_cpu_scale_keeps_the_structure_and_the_recipe_of_each_paper_preset(n
     for field in SCALE_FREE_MODEL_FIELDS:  # the ablation switch and the learning recipe, at both scales
         assert getattr(cpu.model, field) == getattr(paper.model, field), field
     assert paper.model.heads_see_proprioception and paper.model.init_temperature == 0.01  # the recipe
+    assert paper.model.n_step == 2 and preset("cpu-4d").model.n_step == 1  # cpu-4d keeps its measured targets
     assert paper.model.heads_see_fixation == paper.env.learned_fixation  # the point chosen, never the target
     assert paper.model.fixation_reward == ("proximity" if paper.env.learned_fixation else "grasp")
     assert cpu.model.encoder_channels < paper.model.encoder_channels  # the scale: sizes and budgets
