@@ -109,7 +109,8 @@ class ModelConfig:
     """Discount of the grasp policy (Haarnoja et al. 2018). The fixation bandit has no bootstrap."""
     n_step: int = 1
     """Environment steps a grasp critic's target sums rewards over before it bootstraps (n-step returns, Sutton and
-    Barto 2018 section 7.1; Hessel et al. 2018 use 3): 1 is the one-step target of SAC (Haarnoja et al. 2018). An
+    Barto 2018 section 7.1; Hessel et al. 2018 use 3): 1 is the one-step target of SAC (Haarnoja et al. 2018); 2 in
+    the recipe of every Table 1 preset (ours, ``apr.train.config.RECIPE``; docs/decisions.md, "2-step returns"). An
     episode's end cuts the sum short."""
     tau: float = 0.005
     """Polyak rate of the soft target-critic update (Haarnoja et al. 2018)."""
