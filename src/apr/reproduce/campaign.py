@@ -227,8 +227,9 @@ def blind_eval_paths(run_dir: Path) -> list[Path]:
 
 def evaluate_blind(run_dir: Path, workers: WorkersFactory | None = None) -> Path | None:
     """Evaluate the run's final policy given another scene's images (:data:`BLIND_MODE`) on as many held-out
-    episodes as its final evaluation (the same evaluation seeds), and write :func:`blind_eval_path`; skipped
-    (None) when it is there already, or when the newest checkpoint is not the final evaluation's policy."""
+    episodes as its final evaluation (the same evaluation seeds), and write :func:`blind_eval_path` (with ``eval_s``,
+    its wall-clock seconds); skipped (None) when it is there already, or when the newest checkpoint is not the final
+    evaluation's policy."""
     from apr.reproduce.policies import load_run
     from apr.train.evaluation import evaluate
 
@@ -243,10 +244,11 @@ def evaluate_blind(run_dir: Path, workers: WorkersFactory | None = None) -> Path
     config = snapshot.config
     print(f"{run_dir}: its final policy on {result['episodes']} held-out episodes, another scene's images in every "
           "phase ...", flush=True)  # fmt: skip
+    start = time.monotonic()
     blind = evaluate(snapshot.agent, config.env, int(result["episodes"]), "test",
                      config.eval_workers or config.workers, workers, trained_renderer=snapshot.renderer,
                      on_mismatch="warn", blind=BLIND_MODE).to_dict()  # fmt: skip
-    blind.update(grasps=snapshot.grasps, blind=BLIND_MODE)
+    blind.update(grasps=snapshot.grasps, blind=BLIND_MODE, eval_s=round(time.monotonic() - start, 2))
     path = blind_eval_path(run_dir, snapshot.grasps)
     write_text_atomically(path, json.dumps(blind, indent=2))
     print(f"{run_dir}: blind {blind['success_rate']:.1%} ({blind['successes']}/{blind['episodes']}), with its own "
