@@ -8,7 +8,7 @@ nearest object (xy, cm, median) the actor's deterministic point lies, and the cr
 between the two is the actor's, the rest the critic's. The reward reads the simulator's object centres, as rewards
 may; the heads see r only.
 
-    python scripts/fixation_bandit_offline.py results/fixed-views/cpu-active-learned-4d__s0 --critic map
+    python scripts/fixation_bandit_offline.py results/archive/fixed-views/cpu-active-learned-4d__s0 --critic map
 
 Prints one JSON line per run (docs/benchmarks.md, "The fixation bandit on a frozen encoder").
 """
@@ -33,7 +33,7 @@ from apr.reproduce.probe import HELDOUT_OFFSET, PROBE_SEED, cached_scenes, encod
 
 OBJECT_Z = -0.155
 """m: the objects' centre height given to the reward (the scenes record xy only): the median of the 3,000 object
-centres in the fixation samples of ``results/fixed-views/cpu-active-learned-4d__s0`` (range -0.20 to -0.10)."""
+centres in the fixation samples of ``results/archive/fixed-views/cpu-active-learned-4d__s0`` (range -0.20 to -0.10)."""
 SEARCH_GRID = 25
 """Points per side of the search for a tiled critic's best point (a map critic has its own lattice)."""
 

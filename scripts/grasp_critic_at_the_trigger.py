@@ -10,7 +10,7 @@ gripper moves as commanded: a gripper held up (by the workspace's floor, the tra
 descending, which the tool tip's height from step to step shows. The tool tip and target come from ``info``, as a
 probe may; the heads see what they see in training.
 
-    python scripts/grasp_critic_at_the_trigger.py results/gqn-anneal2000/cpu-active-target__s0
+    python scripts/grasp_critic_at_the_trigger.py results/archive/gqn-anneal2000/cpu-active-target__s0
 
 Prints one JSON line per episode, then a summary line.
 """

@@ -8,7 +8,7 @@ linear bound), and the policy heads' architecture (a conv block and one linear l
 width asked, trained for the answer. Where a head the width of the policy's cannot read the offset as well as a
 wider one, trained with the answer in hand, the width loses reach precision before any RL signal does.
 
-    python scripts/reach_readout_probe.py results/batch64/cpu-active-target__s0 --widths 16,8,8 64,32,16
+    python scripts/reach_readout_probe.py results/archive/batch64/cpu-active-target__s0 --widths 16,8,8 64,32,16
 
 Prints one JSON line per (label, readout): held-out median error in cm.
 """

@@ -19,8 +19,8 @@ import torch
 
 import apr  # noqa: F401  (registers the environments)
 
-ACTIVE = "apr/ActiveGrasp-v2"
-PASSIVE = "apr/PassiveGrasp-v2"
+ACTIVE = "apr/ActiveGrasp-v4"
+PASSIVE = "apr/PassiveGrasp-v4"
 FALLBACK_WARNING = "falls back to TinyRenderer"
 
 MakeEnv = Callable[..., gymnasium.Env]

@@ -124,14 +124,17 @@ def _body_and_link_ids(world: GraspWorld, camera) -> tuple[np.ndarray, np.ndarra
     return bodies, links
 
 
-def test_passive_cameras_see_the_gripper_and_the_tray(make_env) -> None:
+@pytest.mark.parametrize("tray", [True, False])
+def test_passive_cameras_see_the_gripper_and_the_tray(make_env, tray: bool) -> None:
+    """v0-v3's wide cameras see the gripper from the start; v4's, framed on the tray, once it has come down toward it
+    (as the benchmark's camera does)."""
     env = make_env(PASSIVE, dof=4)
     env.reset(seed=0)
     world = env.unwrapped.world
     gripper_links = (7, 8, 9, 10, 11, 12, 13)
-    cameras = passive_cameras()
+    cameras = passive_cameras(tray=tray)
     assert len(cameras) == 3
-    for moment in ("reset", "after descending"):
+    for moment in ("reset", "after descending")[tray:]:
         if moment != "reset":
             for _ in range(4):
                 obs, *_ = env.step(np.array([0.0, 0.0, -1.0, 0.0], np.float32))
@@ -143,6 +146,47 @@ def test_passive_cameras_see_the_gripper_and_the_tray(make_env) -> None:
             link_bodies, links = _body_and_link_ids(world, camera)
             on_gripper = (link_bodies == world.arm.uid) & np.isin(links, gripper_links)
             assert on_gripper.sum() > 50, f"camera {i} at {moment}: the gripper itself is out of view"
+
+
+TRAY_FLOOR_CORNERS = np.array([[x, y, -0.19] for x in (0.43, 0.85) for y in (-0.16, 0.28)])
+"""The corners of the tray's floor (m): its mesh's floor, placed and turned as the world places the tray."""
+
+
+def _image_coordinates(camera, point: np.ndarray) -> np.ndarray:
+    """Where ``point`` falls in the camera's image, (x right, y up) in [-1, 1] at the edges."""
+    offset = np.asarray(point, dtype=float) - camera.eye
+    right = np.cross(camera.forward, camera.up)
+    half = np.tan(np.radians(camera.fov_deg) / 2)
+    depth = offset @ camera.forward
+    return np.array([offset @ right, offset @ camera.up]) / depth / half
+
+
+def test_the_passive_cameras_are_framed_on_the_tray_as_the_benchmarks_camera_is() -> None:
+    """v4: the tray's floor fills each image (its corners inside, each within the outer 20% of the half-width on
+    at least one axis) and an object 5 cm across at the middle of the drop area spans at least 6 of the 64 pixels;
+    v0-v3's wider framing gave it under 4."""
+    drop_middle = np.array([0.55, 0.0, -0.17])
+    for tray, least_pixels in ((True, 6.0), (False, 0.0)):
+        for camera in passive_cameras(tray=tray):
+            corners = np.array([_image_coordinates(camera, corner) for corner in TRAY_FLOOR_CORNERS])
+            assert np.abs(corners).max() < 1.0, (tray, corners)  # every corner inside the image
+            if tray:
+                assert np.abs(corners).max(axis=0).max() > 0.8  # and the floor fills it
+            sideways = np.cross(camera.forward, camera.up) * 0.05
+            span = np.linalg.norm(_image_coordinates(camera, drop_middle + sideways)
+                                  - _image_coordinates(camera, drop_middle)) * 64 / 2  # fmt: skip
+            assert span >= least_pixels if tray else span < 4.0, (tray, span)
+
+
+@pytest.mark.parametrize("split", ["train", "test"])
+def test_the_passive_target_is_in_every_view(make_env, split: str) -> None:
+    """In v4 every static camera sees the target: its mask covers at least 30 of the 64x64 pixels in each view at
+    reset, over several scenes (measured: 42 at least, 105 in the median)."""
+    env = make_env("apr/PassiveGrasp-v4", dof=4, split=split, render_size=128)
+    for seed in range(4):
+        observation, _ = env.reset(seed=seed)
+        pixels = (observation["images"][..., 3] > 127).sum(axis=(1, 2))
+        assert pixels.min() >= 30, (seed, pixels)
 
 
 # ---------------------------------------------------------------------------------------------- EGL policy
@@ -161,7 +205,7 @@ def test_egl_one_world_per_process() -> None:
         try:
             assert second.renderer == "tiny"
             # Both renderers see the same scene the same way up (the EGL image is not flipped or mirrored).
-            camera = passive_cameras()[0]
+            camera = passive_cameras(tray=False)[0]
             _, egl_bodies = first.render(camera, segmentation=True)
             _, tiny_bodies = second.render(camera, segmentation=True)
             assert (egl_bodies == first.arm.uid).sum() > 100

@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 import torch
 
+from apr.envs.config import REWARD
+from apr.envs.task import GraspTask
 from apr.model import (
     APRAgent,
     ConvDRAWGenerator,
@@ -22,7 +24,7 @@ from apr.model import (
     images_to_float,
     pixel_sigma,
 )
-from apr.model.agent import proximity_reward
+from apr.model.agent import fixation_points, hindsight_grasp_reward, proximity_reward
 
 
 def random_observation(batch: int, channels: int, rng: np.random.Generator) -> Observation:
@@ -46,11 +48,15 @@ def random_batches(config: ModelConfig, seed: int = 0) -> tuple[GraspBatch, Fixa
         next_obs=random_observation(batch, channels, rng),
         terminated=torch.from_numpy(rng.integers(0, 2, batch).astype(np.float32)),
     )
+    action = torch.from_numpy(rng.uniform(-1, 1, (fix_batch, 3)).astype(np.float32))
+    lifted = torch.from_numpy(rng.integers(0, 2, fix_batch).astype(np.float32))
     fixation = FixationBatch(
         obs=random_observation(fix_batch, channels, rng),
-        action=torch.from_numpy(rng.uniform(-1, 1, (fix_batch, 3)).astype(np.float32)),
-        reward=torch.from_numpy(rng.integers(0, 2, fix_batch).astype(np.float32)),
-    )
+        action=action,
+        reward=lifted,
+        lifted=lifted,
+        grasp_tip=fixation_points(action),
+    )  # the grasp started at the point
     return grasp, fixation
 
 
@@ -350,6 +356,55 @@ def test_relabelled_bandit_targets_pair_uniform_actions_with_their_proximity() -
     grasp_only = APRAgent(ModelConfig.tiny())
     actions, rewards = grasp_only._bandit_targets(fixation)
     assert torch.equal(actions[:, 0], fixation.action) and torch.equal(rewards[:, 0], fixation.reward)
+
+
+def test_hindsight_grasp_rewards_against_hand_computed_ones() -> None:
+    """A lift with the tool tip at a known point: the points 5 cm from it earn the paper's reward, 15 cm not; the cone
+    halves at 5 cm; a failed grasp and an episode without an attempt earn nothing anywhere."""
+    tip = fixation_points(torch.zeros(3))  # the point of action 0
+    dy = 0.05 / ((REWARD.workspace_high[1] - REWARD.workspace_low[1]) / 2)  # 5 cm along y, in action units
+    actions = torch.tensor([[0.0, 0.0, 0.0], [0.0, dy, 0.0], [0.0, 3 * dy, 0.0]]).expand(3, 3, 3)
+    lifted = torch.tensor([1.0, 0.0, 0.0])
+    tips = torch.stack([tip, tip, torch.full((3,), float("nan"))])  # a lift; a failure there; no attempt at all
+    np.testing.assert_allclose(hindsight_grasp_reward(actions, lifted, tips, 0.10), [[1, 1, 0], [0, 0, 0], [0, 0, 0]])
+    np.testing.assert_allclose(hindsight_grasp_reward(actions, lifted, tips, 0.10, "cone"),
+                               [[1, 0.5, 0], [0, 0, 0], [0, 0, 0]], atol=1e-5)  # fmt: skip
+
+
+@pytest.mark.parametrize("reward", ["grasp", "tip-proximity"])
+def test_relabelled_grasp_targets_are_the_reward_each_point_would_have_earned(reward: str) -> None:
+    agent = APRAgent(ModelConfig.tiny(fixation_reward=reward, fixation_relabels=16))
+    _, fixation = random_batches(agent.config)
+    fixation.grasp_tip = fixation_points(torch.zeros(3)).expand(len(fixation.action), 3).clone()
+    fixation.grasp_tip[0] = float("nan")  # no attempt
+    fixation.lifted[0] = 0.0
+    fixation.reward = fixation.lifted * ((fixation_points(fixation.action) - fixation.grasp_tip).norm(dim=-1) <= 0.1)
+    actions, rewards = agent._bandit_targets(fixation)
+    assert actions.shape == (len(fixation.action), 17, 3) and torch.equal(actions[:, 0], fixation.action)
+    # by hand, through the environment's own mapping of actions to points
+    points = np.stack([[GraspTask.fixation_from_action(a) for a in sample] for sample in actions.numpy()])
+    distance = np.linalg.norm(points - fixation.grasp_tip.numpy()[:, None], axis=-1)
+    near = distance <= 0.10 if reward == "grasp" else np.clip(1 - distance / 0.10, 0, None)
+    expected = np.nan_to_num(fixation.lifted.numpy()[:, None] * near)
+    np.testing.assert_allclose(rewards.numpy(), expected, atol=1e-5)
+    assert (rewards[:, 1:] > 0).any()  # some relabelled points lie near a lift
+    if reward == "grasp":  # the chosen point's target is the episode's own grasp reward
+        assert torch.equal(rewards[:, 0], fixation.reward)
+
+
+@pytest.mark.parametrize("reward", ["grasp", "tip-proximity"])
+def test_the_bandit_never_reads_the_simulators_objects(reward: str) -> None:
+    """Only the shaping flag ("proximity") reads the objects' centres: with every reward of a Table 1 row, the targets
+    stay the same when only the simulator's object centres change."""
+    targets = []
+    for centres in ([[0.5, 0.0, -0.15]], [[0.7, 0.1, -0.18]], [[float("nan")] * 3]):
+        agent = APRAgent(ModelConfig.tiny(fixation_reward=reward, fixation_relabels=8))
+        _, fixation = random_batches(agent.config)
+        fixation.object_centres = torch.tensor([centres]).expand(len(fixation.action), 1, 3)
+        targets.append(agent._bandit_targets(fixation))
+    for actions, rewards in targets[1:]:
+        assert torch.equal(actions, targets[0][0]) and torch.equal(rewards, targets[0][1])
+    assert targets[0][1].sum() > 0
 
 
 def test_the_learner_maps_fixation_actions_to_points_as_the_environment_does() -> None:

@@ -25,8 +25,8 @@ from apr.model.config import ModelConfig
 from apr.reproduce import campaign, demo, figures, plot, policies
 from apr.reproduce.campaign import Table1Args, plan_runs
 from apr.reproduce.episodes import make_env
-from apr.reproduce.orderings import Difference, Ordering, bootstrap_difference, verdict
-from apr.reproduce.paper import PAPER_PRESETS
+from apr.reproduce.orderings import PAPER_ORDERINGS, Difference, bootstrap_difference, evaluations_for, verdict
+from apr.reproduce.paper import PAPER_PRESETS, PAPER_TABLE1
 from apr.reproduce.policies import PolicySnapshot, load_training_checkpoint, package_checkpoint, run_checkpoints
 from apr.reproduce.table import build_table1, render_table1, write_table1
 from apr.train.config import preset
@@ -147,7 +147,7 @@ def test_table1_shows_exactly_the_numbers_of_the_final_eval_files(tmp_path: Path
         assert rows[name][6] == "2 (s0, s1)"
         assert rows[name][8] == str(total_episodes)
     assert rows["active-target"][7] == "1,000"  # the grasps of the final evaluations
-    assert rows["active-learned-4d"][7] == "1,050"
+    assert rows["active-learned-4d"][7] == f"{1000 + 10 * PAPER_PRESETS.index('active-learned-4d'):,}"
     assert "3/100" not in markdown.split("## Runs")[0]  # the earlier evaluations are not reported
     assert "eval_00001000.json" in markdown  # each run's final evaluation file is named
 
@@ -199,21 +199,22 @@ def fabricate_blind(run_dir: Path, grasps: int, successes: int, episodes: int) -
     (run_dir / "eval" / f"blind_both_{grasps:08d}.json").write_text(json.dumps(result))
 
 
-CPU_SEEDS = {  # paper row -> per seed (successes of 100 at 600 grasps, blind successes or None)
-    "active-target": [(70, 20), (72, 30), (68, None)],
-    "passive-target": [(50, 10), (50, 20), (50, 30)],
-    "active-target-no-logpolar": [(95, 5), (99, 5), (97, 5)],
-    "active-target-no-representation": [(69, 1), (71, 2), (70, 3)],
-    "active-learned-6d": [(10, 9)],
-    "active-learned-4d": [(60, 50), (70, 40), (80, 30)],
+CPU_SEEDS = {  # paper row -> per seed (successes of 30 at 200 grasps, of 100 at 600, blind successes of 100 or None)
+    "active-target": [(9, 70, 20), (12, 72, 30), (15, 68, None)],
+    "passive-target": [(15, 50, 10), (15, 50, 20), (15, 50, 30)],
+    "active-target-no-logpolar": [(3, 95, 5), (3, 99, 5), (3, 97, 5)],
+    "active-target-no-representation": [(6, 69, 1), (9, 71, 2), (12, 70, 3)],
+    "passive-target-no-representation": [(3, 20, 20), (3, 21, 20), (3, 19, 20)],
+    "active-learned-6d": [(27, 10, 9)],
+    "active-learned-4d": [(18, 60, 50), (21, 70, 40), (24, 80, 30)],
 }
 
 
-def test_cpu_table_gives_the_known_means_blind_successes_and_orderings(tmp_path: Path):
+def test_cpu_table_gives_the_known_means_blind_successes_and_each_claim_in_its_direction(tmp_path: Path):
     runs = tmp_path / "runs"
     for row, seeds in CPU_SEEDS.items():
-        for seed, (successes, blind) in enumerate(seeds):
-            run_dir = fabricate_run(runs, "cpu-" + row, seed, [(200, 1, 30), (600, successes, 100)])
+        for seed, (early, successes, blind) in enumerate(seeds):
+            run_dir = fabricate_run(runs, "cpu-" + row, seed, [(200, early, 30), (600, successes, 100)])
             if blind is not None:
                 fabricate_blind(run_dir, 600, blind, 100)
     out = write_table1([runs], tmp_path / "table1.md", [f"cpu-{row}" for row in CPU_SEEDS])
@@ -221,51 +222,86 @@ def test_cpu_table_gives_the_known_means_blind_successes_and_orderings(tmp_path:
     table = json.loads(out.with_name("table1.json").read_text())
     by_row = {row["paper_row"]: row for row in table["rows"]}
     for row, seeds in CPU_SEEDS.items():
-        rates = [successes / 100 for successes, _ in seeds]
-        blinds = [blind / 100 for _, blind in seeds if blind is not None]
+        rates = [successes / 100 for _, successes, _ in seeds]
+        blinds = [blind / 100 for _, _, blind in seeds if blind is not None]
         assert by_row[row]["preset"] == "cpu-" + row
         assert by_row[row]["seed_mean"] == pytest.approx(statistics.mean(rates))
         assert by_row[row]["blind_mean"] == pytest.approx(statistics.mean(blinds))
         assert [seed["success_rate"] for seed in by_row[row]["seeds"]] == pytest.approx(rates)
         assert all(seed["grasps"] == 600 and seed["episodes"] == 100 for seed in by_row[row]["seeds"])
-    found = {(item["first"], item["second"]): item for item in table["orderings"]}
-    active = found["cpu-active-target", "cpu-passive-target"]  # 70% (70, 72, 68) against 50% (all 50)
+    found = {(item["first"], item["second"], item["measure"]): item for item in table["orderings"]}
+    assert all(item["sentence"] for item in found.values())  # every claim carries the paper's words
+    active = found["cpu-active-target", "cpu-passive-target", "final"]  # 70% (70, 72, 68) against 50% (all 50)
     assert active["difference"] == pytest.approx(0.2) and active["seeds"] == [3, 3]
     # the seeds' spread and 100 episodes each (a binomial's standard deviation of ~2.6 points for a row's mean)
     assert 0.1 < active["ci_low"] < 0.2 < active["ci_high"] < 0.3 and active["verdict"] == "holds"
-    assert found["cpu-active-target", "cpu-active-target-no-logpolar"]["verdict"] == "reversed"  # 70 against 97
-    negligible = found["cpu-active-target", "cpu-active-target-no-representation"]  # 70 against 70
-    assert negligible["difference"] == pytest.approx(0.0, abs=1e-9) and negligible["verdict"] == "holds"
-    one_seed = found["cpu-active-learned-6d", "cpu-active-target"]  # 10 against 70, but one seed
+    # the curve: the mean of the 200- and 600-grasp evaluations, (0.4 + 0.7) / 2 against (0.5 + 0.5) / 2
+    curve = found["cpu-active-target", "cpu-passive-target", "curve"]
+    assert curve["difference"] == pytest.approx(0.05)
+    assert found["cpu-active-target", "cpu-active-target-no-logpolar", "final"]["verdict"] == "reversed"  # 70 vs 97
+    # "negligible improvement" without representation learning: active-target ahead; 70 against 70 is not that
+    representation = found["cpu-active-target", "cpu-active-target-no-representation", "final"]
+    assert representation["difference"] == pytest.approx(0.0, abs=1e-9)
+    assert representation["verdict"] == "not resolved"
+    passive = found["cpu-passive-target", "cpu-passive-target-no-representation", "final"]  # 50 against 20
+    assert passive["difference"] == pytest.approx(0.3) and passive["verdict"] == "holds"
+    one_seed = found["cpu-active-learned-6d", "cpu-active-target", "final"]  # 10 against 70, but one seed
     assert one_seed["difference"] == pytest.approx(-0.6) and one_seed["verdict"] == "not resolved"
+    early = found["cpu-active-learned-6d", "cpu-active-target", "early"]  # the 200-grasp evaluation: 27 of 30
+    assert early["difference"] == pytest.approx(0.9 - 0.4)
     markdown = out.read_text()
     rows = table_cells(markdown)
     assert rows["cpu-active-target"][1] == "84%"  # the paper's number beside its CPU scale
     assert rows["cpu-active-target"][4] == "25.0% (2 of 3 seeds)"
-    assert "| active-target beats passive-target |" in markdown and "**holds**" in markdown
-    assert "they do not reproduce the paper's numbers" in markdown
+    assert '"We observe that the active model achieves 8% better performance."' in markdown
+    assert "**holds**" in markdown and "they do not reproduce the paper's numbers" in markdown
     assert iio.imread(out.with_name("figure4.png")).ndim == 3
 
 
 def test_bootstrap_interval_and_verdicts_on_known_seeds():
-    certain = bootstrap_difference([(100, 100)] * 3, [(0, 100)] * 2)  # rates of 1 and 0 resample to themselves
+    certain = bootstrap_difference([[(100, 100)]] * 3, [[(0, 100)]] * 2)  # rates of 1 and 0 resample to themselves
     assert (certain.difference, certain.low, certain.high) == pytest.approx((1.0, 1.0, 1.0))
-    spread = bootstrap_difference([(0, 100), (100, 100)], [(0, 100)])  # means 0 (1/4), 0.5 (1/2), 1 (1/4)
+    spread = bootstrap_difference([[(0, 100)], [(100, 100)]], [[(0, 100)]])  # means 0 (1/4), 0.5 (1/2), 1 (1/4)
     assert (spread.difference, spread.low, spread.high) == pytest.approx((0.5, 0.0, 1.0))
-    assert bootstrap_difference([(1, 100)], [(2, 50)]) == bootstrap_difference([(1, 100)], [(2, 50)])  # seeded
-    agreeing = bootstrap_difference([(1, 100)] * 3, [(0, 100)] * 3)  # seeds that agree: the episodes still vary
+    assert bootstrap_difference([[(1, 100)]], [[(2, 50)]]) == bootstrap_difference([[(1, 100)]], [[(2, 50)]])
+    agreeing = bootstrap_difference([[(1, 100)]] * 3, [[(0, 100)]] * 3)  # seeds that agree: the episodes still vary
     assert agreeing.difference == pytest.approx(0.01) and agreeing.low <= 0 < agreeing.high
-    better = Ordering("a", "b", "better", "")
-    assert verdict(better, agreeing) == "not resolved"
-    assert verdict(better, certain) == "holds"
-    assert verdict(better, certain, seeds=(3, 2)) == "not resolved"  # fewer than MIN_SEEDS in a row
-    assert verdict(better, Difference(-0.2, -0.3, -0.1)) == "reversed"
-    negligible = Ordering("a", "b", "negligible", "")
-    assert verdict(negligible, Difference(0.02, -0.05, 0.08)) == "holds"
-    assert verdict(negligible, Difference(0.2, 0.15, 0.25)) == "reversed"
-    assert verdict(negligible, spread) == "not resolved"
+    curves = bootstrap_difference([[(100, 100), (0, 100)]] * 3, [[(50, 100), (50, 100)]] * 3)  # each seed's mean
+    assert curves.difference == pytest.approx(0.0, abs=1e-12)
+    assert verdict(agreeing) == "not resolved"
+    assert verdict(certain) == "holds"
+    assert verdict(certain, seeds=(3, 2)) == "not resolved"  # fewer than MIN_SEEDS in a row
+    assert verdict(Difference(-0.2, -0.3, -0.1)) == "reversed"
     with pytest.raises(ValueError, match="at least one seed"):
-        bootstrap_difference([], [(1, 2)])
+        bootstrap_difference([], [[(1, 2)]])
+
+
+def test_each_measure_reads_its_evaluations():
+    evaluations = [(0, 0, 30), (200, 3, 30), (400, 6, 30), (600, 50, 100)]
+    assert evaluations_for("final", evaluations) == [(50, 100)]
+    assert evaluations_for("curve", evaluations) == [(3, 30), (6, 30), (50, 100)]  # after the first grasp
+    assert evaluations_for("early", evaluations) == [(3, 30)]  # within the first third of 600 grasps
+
+
+PAPER_TEX = Path(__file__).resolve().parents[2] / "shared" / "paper" / "apr-paper.tex"
+
+
+def test_every_claim_reads_the_paper_in_its_direction():
+    for ordering in PAPER_ORDERINGS:
+        assert ordering.first in PAPER_TABLE1 and ordering.second in PAPER_TABLE1 and ordering.sentence
+    by_claim = {(o.first, o.second, o.measure) for o in PAPER_ORDERINGS}
+    assert ("active-target", "active-target-no-representation", "final") in by_claim  # "negligible improvement"
+    assert ("active-learned-6d", "active-target", "early") in by_claim  # "learns faster in the initial stages"
+    assert ("active-learned-6d", "active-target", "final") in by_claim  # "slightly better in final performance"
+    assert ("passive-target", "passive-target-no-representation", "final") in by_claim  # "benefited both"
+
+
+@pytest.mark.skipif(not PAPER_TEX.exists(), reason="the paper's source is not beside this checkout")
+def test_every_claim_quotes_the_papers_words():
+    text = " ".join(PAPER_TEX.read_text().split()).replace("\\%", "%")
+    for ordering in PAPER_ORDERINGS:
+        for part in ordering.sentence.split("..."):
+            assert part.strip() in text, part
 
 
 COMMITTED_TABLE = Path(__file__).resolve().parents[1] / "results" / "table1-cpu"
@@ -436,9 +472,12 @@ def test_a_packaged_checkpoint_dropped_in_is_what_the_demo_runs_and_reports(run_
     assert "UNTRAINED" not in report
     assert f"**Policy:** packaged checkpoint {manifest.stem} (smoke, 2 grasps)" in report
     final = written["final_eval"]
+    model = written["config"]["model"]
     assert (f"**Training:** trained with `pytest tiny smoke run` for 2 grasps in {written['train_minutes']:.1f} "
-            f"minutes of training on the test machine; measured held-out success at those weights: "
-            f"{final['successes']}/{final['episodes']}") in report  # fmt: skip
+            f"minutes of training on the test machine, in `{written['config']['env']['env_id']}`, its fixation bandit "
+            f"learning from the {model['fixation_reward']} reward with {model['fixation_relabels']} relabelled points "
+            f"a sample; measured held-out success at those weights: {final['successes']}/{final['episodes']}"
+            ) in report  # fmt: skip
     assert iio.imread(tmp_path / "demo" / "fig5_pregrasp.png").ndim == 3
 
 
@@ -491,7 +530,7 @@ def test_figure_3_drives_the_policy_in_its_own_environment_settings():
 
     snapshot = initial_snapshot(preset("cpu-4d").resolved(), "cpu-4d__s0")
     own, replay, policy, _ = fig3_driver(snapshot)
-    assert policy is not None and own.env_id == "apr/ActiveGrasp-v2" and replay.env_id == "apr/PassiveGrasp-v2"
+    assert policy is not None and own.env_id == "apr/ActiveGrasp-v4" and replay.env_id == "apr/PassiveGrasp-v4"
     assert own.reveal_target and own.render_size == 128 and own.renderer == "tiny" and own.dof == 4
     assert replay.foveation == "resize" and replay.render_size == 128
     learned = initial_snapshot(preset("cpu-learned-4d").resolved(), "cpu-learned-4d__s0")

@@ -73,12 +73,19 @@ def test_critic_target_bootstraps_unless_terminated() -> None:
 
 
 def test_bandit_critic_regresses_the_reward_without_bootstrap() -> None:
+    """Critics that answer 0.5 and -1.0 everywhere, rewards 0, 1, 0.5 and 2: each critic's squared errors are
+    (0.25, 0.25, 0, 2.25) and (1, 4, 2.25, 9), means 0.6875 and 4.0625, and the loss is half their sum, 2.375,
+    whatever r and the actions (no next state, no target critic); the same with two actions for each of 2 scenes."""
     heads = tiny_heads(3, target_critic=False)
     assert heads.critic_target is None
-    r, action, reward = torch.randn(4, CHANNELS, GRID, GRID), torch.rand(4, 3), torch.rand(4)
+    for critic, value in ((heads.critic.q1, 0.5), (heads.critic.q2, -1.0)):
+        critic.out.weight.data.zero_()
+        critic.out.bias.data.fill_(value)
+    r, action, reward = torch.randn(4, CHANNELS, GRID, GRID), torch.rand(4, 3), torch.tensor([0.0, 1.0, 0.5, 2.0])
     loss, _ = bandit_critic_loss(heads, r, action, reward)
-    q1, q2 = heads.critic(r, action)
-    torch.testing.assert_close(loss, 0.5 * ((q1 - reward) ** 2).mean() + 0.5 * ((q2 - reward) ** 2).mean())
+    assert loss.item() == 2.375
+    loss, _ = bandit_critic_loss(heads, r[:2], action.view(2, 2, 3), reward.view(2, 2))
+    assert loss.item() == 2.375
 
 
 def test_temperature_rises_when_entropy_is_below_target() -> None:

@@ -35,11 +35,13 @@ def run_scripted_episodes(env, seeds) -> list[str]:
         while not (terminated or truncated):
             obs, reward, terminated, truncated, info = env.step(scripted_action(fixation_point, obs["gripper"]))
             total_reward += reward
-        if truncated:  # e.g. the fingers came to rest on a tall object above the grasp height
-            assert not terminated and not info["grasp_attempted"] and info["grasp_steps"] == 15, f"seed {seed}"
+        assert terminated and not truncated, f"seed {seed}: the 15-step limit is part of the task, it never truncates"
+        if not info["grasp_attempted"]:  # e.g. the fingers came to rest on a tall object above the grasp height
+            assert info["grasp_steps"] == 15 and obs["steps_left"] == 0, f"seed {seed}: ended early without a grasp"
+            assert info["grasp_reward"] == 0.0 and not info["grasp_success"], f"seed {seed}"
             outcomes.append("no attempt")
             continue
-        assert info["grasp_attempted"], f"seed {seed}"
+        assert info["grasp_steps"] <= 15 and obs["steps_left"] == 15 - info["grasp_steps"], f"seed {seed}"
         success = bool(info["grasp_success"])
         assert info["grasp_reward"] == float(success)
         target_z = env.unwrapped.world.object_position(target)[2]
@@ -58,15 +60,17 @@ def _summary(outcomes: list[str]) -> str:
 
 
 def test_scripted_grasp_succeeds_in_most_train_episodes(make_env) -> None:
-    env = make_env(ACTIVE, dof=4, target="env", foveation="resize")
-    outcomes = run_scripted_episodes(env, seeds=range(6))
+    """Seeds 0-5, and seed 19, in which the script never reaches the grasp height: that episode ends at the
+    15-step limit, terminated, its clock at 0, and counts as "no attempt"."""
+    env = make_env(ACTIVE, dof=4, target="env", foveation="resize", render_size=64)  # the script reads no image
+    outcomes = run_scripted_episodes(env, seeds=[*range(6), 19])
     print(_summary(outcomes))
-    assert outcomes.count("success") >= 3, outcomes
+    assert outcomes.count("success") >= 3 and outcomes[-1] == "no attempt", outcomes
 
 
 @pytest.mark.slow
 def test_scripted_grasp_success_share_over_40_episodes(make_env) -> None:
-    env = make_env(ACTIVE, dof=4, target="env", foveation="resize")
+    env = make_env(ACTIVE, dof=4, target="env", foveation="resize", render_size=64)  # the script reads no image
     outcomes = run_scripted_episodes(env, seeds=range(100, 140))
     print(_summary(outcomes))
     assert outcomes.count("success") >= 0.7 * len(outcomes), outcomes

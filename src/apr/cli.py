@@ -9,6 +9,7 @@
     apr bench learner                             milliseconds per joint GQN + SAC update
     apr bench learning --preset cpu-4d            held-out success against grasps and minutes, beside baselines
     apr bench backends --preset cpu-4d            the same run with local workers and with Ray actors: speed, numbers
+    apr bench vanilla --task benchmark            Stable-Baselines3 agents on apr's tasks, the same held-out episodes
     apr reproduce table1 --seeds S --grasps N     train the presets of Table 1 (resumable), write table1.md
     apr reproduce package RUN_DIR                 package a run's checkpoint for apr demo
     apr plot RUN_DIR... --out FILE                held-out success against grasps, one line per preset
@@ -32,10 +33,12 @@ from apr.bench import backends as backends_bench
 from apr.bench import env as env_bench
 from apr.bench import learner as learner_bench
 from apr.bench import learning as learning_bench
+from apr.bench import vanilla as vanilla_bench
 from apr.bench.backends import BackendsBenchArgs
 from apr.bench.env import EnvBenchArgs
 from apr.bench.learner import LearnerBenchArgs
 from apr.bench.learning import LearningBenchArgs
+from apr.bench.vanilla import VanillaArgs
 from apr.commands import backends as backends_command
 from apr.commands import render as render_command
 from apr.commands import train as train_command
@@ -48,6 +51,7 @@ from apr.reproduce.figures import FiguresArgs
 from apr.reproduce.plot import PlotArgs
 from apr.reproduce.policies import PackageArgs
 from apr.reproduce.probe import ProbeArgs
+from apr.reproduce.runs import UnreadableFile
 from apr.train.checkpoints import CheckpointError, RunLocked
 from apr.train.config import ConfigError
 
@@ -65,7 +69,8 @@ class BenchArgs:
         Annotated[EnvBenchArgs, tyro.conf.subcommand("env")]
         | Annotated[LearnerBenchArgs, tyro.conf.subcommand("learner")]
         | Annotated[LearningBenchArgs, tyro.conf.subcommand("learning")]
-        | Annotated[BackendsBenchArgs, tyro.conf.subcommand("backends")],
+        | Annotated[BackendsBenchArgs, tyro.conf.subcommand("backends")]
+        | Annotated[VanillaArgs, tyro.conf.subcommand("vanilla")],
         tyro.conf.arg(name=""),
     ]
 
@@ -108,6 +113,7 @@ HANDLERS = {
     LearnerBenchArgs: learner_bench.run,
     LearningBenchArgs: learning_bench.run,
     BackendsBenchArgs: backends_bench.run,
+    VanillaArgs: vanilla_bench.run,
 }
 """What each parsed command runs (a group's chosen subcommand runs its own handler)."""
 
@@ -129,6 +135,11 @@ def main(argv: list[str] | None = None) -> None:
         HANDLERS[type(command)](command)
     except (ConfigError, RunLocked, CheckpointError) as error:  # refusals: a message, not a traceback
         raise SystemExit("\n".join(f"apr {argv[0]}: error: {line}" for line in str(error).splitlines())) from None
+    except UnreadableFile as error:  # a damaged file of a run folder, by name
+        raise SystemExit(f"apr {argv[0]}: error: {error}") from None
+    except OSError as error:  # a path that is missing, unreadable or cannot be made
+        where = f": {error.filename}" if error.filename else ""
+        raise SystemExit(f"apr {argv[0]}: error: {error.strerror or error}{where}") from None
 
 
 if __name__ == "__main__":

@@ -104,10 +104,13 @@ def run(args: LearnerBenchArgs) -> None:
         next_obs=_random_observation(batch, args.image_channels, generator, device),
         terminated=(torch.rand(batch, generator=generator) < 0.2).float().to(device),
     )
+    lifted = (torch.rand(batch, generator=generator) < 0.5).float().to(device)
     fixation = FixationBatch(
         obs=_random_observation(batch, args.image_channels, generator, device),
         action=(torch.rand(batch, 3, generator=generator) * 2 - 1).to(device),
-        reward=(torch.rand(batch, generator=generator) < 0.5).float().to(device),
+        reward=lifted,
+        lifted=lifted,  # the grasp started at the point chosen: what hindsight relabelling reads
+        grasp_tip=torch.tensor([0.55, 0.0, -0.13]).expand(batch, 3).to(device),
     )
 
     def synchronize() -> None:

@@ -236,14 +236,43 @@ def evaluate(args: EvalArgs) -> None:
 class PresetsArgs:
     """List the presets and what each changes from active-target."""
 
+    markdown: bool = False
+    """Print the table of docs/presets.md instead (:func:`presets_markdown`)."""
 
-def list_presets(_: PresetsArgs) -> None:
+
+def list_presets(args: PresetsArgs) -> None:
+    if args.markdown:
+        print(presets_markdown(), end="")
+        return
     base = _flat(PRESETS["active-target"][1])
     for name, (description, config) in PRESETS.items():
         changes = {k: v for k, v in _flat(config).items() if base.get(k) != v and k != "preset"}
         print(f"{name:34s} {description}")
         if changes and name != "active-target":
             print(" " * 35 + ", ".join(f"{k}={v}" for k, v in changes.items()))
+
+
+PRESET_TABLE_FIELDS = ("env.env_id", "env.dof", "env.target", "env.foveation", "model.representation",
+                       "model.fixation_reward", "model.fixation_relabels", "total_grasps")  # fmt: skip
+"""The fields the presets table shows for every preset: what sets the rows of Table 1 apart, and the budget."""
+
+
+def presets_markdown(compact: bool = False) -> str:
+    """Every preset as a markdown table (docs/presets.md holds it, and the README the compact one; a test keeps them
+    equal): its name, what it is and, unless ``compact``, the fields of :data:`PRESET_TABLE_FIELDS`."""
+    if compact:
+        lines = ["| preset | what it is |", "| --- | --- |"]
+        lines += [f"| `{name}` | {description.replace('|', '/')} |" for name, (description, _) in PRESETS.items()]
+        return "\n".join(lines) + "\n"
+    header = ["preset", "what it is", *(f"`{name}`" for name in PRESET_TABLE_FIELDS)]
+    lines = ["| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
+    for name, (description, config) in PRESETS.items():
+        flat = _flat(config)
+        learned = config.env.learned_fixation
+        values = [str(flat[field]) if learned or not field.startswith("model.fixation") else "-"
+                  for field in PRESET_TABLE_FIELDS]  # fmt: skip
+        lines.append(f"| `{name}` | {description.replace('|', '/')} | " + " | ".join(values) + " |")
+    return "\n".join(lines) + "\n"
 
 
 def _flat(config: TrainConfig) -> dict[str, object]:

@@ -160,11 +160,27 @@ class CameraSpec:
     near: float = 0.01
     far: float = 3.0
     views_per_step: int = 3
+    tray_fov_deg: float = 20.0
+    """The passive cameras' field of view from v4 on (benchmark: ``KukaDiverseObjectEnv``'s camera, 20 deg)."""
+    tray_aim: Vec3 = (0.64, 0.06, -0.19)
+    """ours: where the passive cameras look from v4 on: the middle of the tray's floor."""
+    tray_elevation_deg: float = 56.0
+    """How far above the horizontal the passive cameras look down from v4 on (benchmark: its camera's pitch, -56
+    deg)."""
+    tray_azimuths_deg: tuple[float, float, float] = (0.0, 90.0, -90.0)
+    """ours: the passive cameras' directions from ``tray_aim`` from v4 on, about the vertical from +x: the front
+    (facing the Kuka), the left and the right of the tray."""
+    tray_distances: tuple[float, float, float] = (1.43, 1.38, 1.38)
+    """m from ``tray_aim`` to each passive camera from v4 on (ours): the nearest at which the four corners of the
+    tray's floor (x 0.43-0.85, y -0.16-0.28 m) lie within the middle 95% of the image, so that the tray fills it,
+    as the benchmark's camera frames it (docs/decisions.md, "The passive cameras")."""
     passive_fov_deg: float = 50.0
+    """v0-v3's passive cameras (ours): field of view."""
     passive_target: Vec3 = (0.62, 0.05, -0.05)
-    """ours: the three static cameras look at this point, between the tray floor and the gripper's start."""
+    """v0-v3's passive cameras (ours): where they look, between the tray floor and the gripper's start."""
     passive_eyes: tuple[Vec3, Vec3, Vec3] = ((1.35, 0.05, 0.45), (0.75, 0.85, 0.5), (0.75, -0.75, 0.5))
-    """ours: front (facing the Kuka), left and right of the tray, each about 0.9-1 m away and 30-45 deg up."""
+    """v0-v3's passive cameras (ours): front (facing the Kuka), left and right of the tray, each about 0.9-1 m away
+    and 30-45 deg up; the tray covers about a third of each image, an object a few pixels."""
 
 
 @dataclass(frozen=True)
@@ -191,3 +207,17 @@ GRASP = GraspSpec()
 HEAD = HeadSpec()
 CAMERA = CameraSpec()
 REWARD = RewardSpec()
+
+
+VERSIONS: dict[str, dict[str, bool]] = {
+    "v0": {"limit_in_task": False, "tilted_reach": False, "tilt_about_tip": False},
+    "v1": {"limit_in_task": True, "tilted_reach": False, "tilt_about_tip": False},
+    "v2": {"limit_in_task": True, "tilted_reach": True, "tilt_about_tip": False},
+    "v3": {"limit_in_task": True, "tilted_reach": True, "tilt_about_tip": True},
+    "v4": {"limit_in_task": True, "tilted_reach": True, "tilt_about_tip": False},
+}
+"""Each version's task, as keyword arguments of the environments (docs/environments.md, "Versions"): v1 puts the
+15-step limit in the task, v2 lets a tilted gripper reach the grasp height, v3 turns it about its tool tip (measured,
+not carried on), v4 frames the passive cameras on the tray (:data:`PASSIVE_TRAY_CAMERAS`)."""
+PASSIVE_TRAY_CAMERAS: dict[str, bool] = {"v0": False, "v1": False, "v2": False, "v3": False, "v4": True}
+"""Whether the passive model's cameras are framed on the tray, by version."""

@@ -332,7 +332,7 @@ class ActiveGraspEnv(GraspEnv):
                  renderer: str = "tiny", render_mode: str | None = None,
                  reach_scale: float = REWARD.reach_scale, render_size: int = CAMERA.render_size,
                  reveal_target: bool = False, limit_in_task: bool = True, initial_views: str = "drawn",
-                 tilted_reach: bool = True, tilt_about_tip: bool = True):  # fmt: skip
+                 tilted_reach: bool = True, tilt_about_tip: bool = False):  # fmt: skip
         _check_choice("initial_views", initial_views, INITIAL_VIEWS)
         self.initial_views = initial_views
         self._at_reset = False
@@ -369,12 +369,17 @@ class PassiveGraspEnv(GraspEnv):
     """Grasping seen by three static cameras: the passive model of APR (Zaky et al., Section 4A).
 
     The same world and task as :class:`ActiveGraspEnv` with ``target="env"`` but no head: three fixed
-    cameras (front, left and right of the tray, about 1 m away) see the tray and the gripper, with no
+    cameras (front, left and right of the tray, looking down at 56 deg) see the tray and the gripper, with no
     attention to any object. Renders (256x256 by default) are resized to 64x64 (no log-polar warp).
 
     ## Arguments
-    ``gymnasium.make("apr/PassiveGrasp-v2", dof=6, split="train", renderer="tiny")``, as for the active env
-    (``reveal_target`` too).
+    ``gymnasium.make("apr/PassiveGrasp-v4", dof=6, split="train", renderer="tiny")``, as for the active env
+    (``reveal_target`` too), and
+
+    - ``tray_cameras``: the cameras are framed on the tray as the benchmark's camera is (default; ``-v4``): a field
+      of view of 20 deg, 1.4 m from the middle of the tray's floor, whose corners lie inside each image; an object
+      5 cm across spans about 6 pixels of the 64. ``False`` is ``-v0`` to ``-v3``: a field of view of 50 deg from
+      about 1 m, the tray a third of each image and an object a few pixels.
 
     ## Action Space
     ``Box(-1, 1, (dof,), float32)``, as for ``apr/ActiveGrasp-v2`` with ``target="env"``.
@@ -394,13 +399,17 @@ class PassiveGraspEnv(GraspEnv):
     def __init__(self, dof: int = 6, split: str = "train", renderer: str = "tiny",
                  render_mode: str | None = None, reach_scale: float = REWARD.reach_scale,
                  render_size: int = CAMERA.render_size, reveal_target: bool = False,
-                 limit_in_task: bool = True, tilted_reach: bool = True, tilt_about_tip: bool = True):  # fmt: skip
+                 limit_in_task: bool = True, tilted_reach: bool = True, tilt_about_tip: bool = False,
+                 tray_cameras: bool = True):  # fmt: skip
         super().__init__(dof=dof, target="env", foveation="resize", split=split, renderer=renderer,
                          render_mode=render_mode, with_head=False, reach_scale=reach_scale,
                          render_size=render_size, reveal_target=reveal_target,
                          limit_in_task=limit_in_task, tilted_reach=tilted_reach,
                          tilt_about_tip=tilt_about_tip)  # fmt: skip
-        self.cameras = passive_cameras()
+        self.tray_cameras = bool(tray_cameras)
+        """The cameras are framed on the tray (v4): its floor fills each image, as the benchmark's camera frames it.
+        False (v0-v3): the tray covers about a third of each image."""
+        self.cameras = passive_cameras(tray=self.tray_cameras)
         self._viewpoints = np.stack([np.concatenate([cam.eye, cam.forward]) for cam in self.cameras])
 
     def _render_views(self):

@@ -7,6 +7,7 @@ when drawn again, so a reset neither reloads meshes nor grows memory without bou
 
 from __future__ import annotations
 
+import math
 from collections import OrderedDict
 from collections.abc import Sequence
 
@@ -243,13 +244,29 @@ class GraspWorld:
         return render(self.client, camera, self.render_size, self.renderer, CAMERA.near, CAMERA.far, segmentation)
 
 
-def passive_cameras() -> list[Camera]:
-    """The passive model's three static cameras: they see the tray and the gripper, with no attention."""
-    target = np.array(CAMERA.passive_target)
+def passive_cameras(tray: bool = True) -> list[Camera]:
+    """The passive model's three static cameras: they see the tray and the gripper, with no attention.
+
+    Args:
+        tray: framed on the tray as the benchmark's camera is (v4 on: a field of view of 20 deg, the tray's floor
+            filling the image); False: the wider framing of v0-v3 (50 deg, the tray a third of the image).
+    """
+    if not tray:
+        return [_camera_at(np.array(eye), np.array(CAMERA.passive_target), CAMERA.passive_fov_deg)
+                for eye in CAMERA.passive_eyes]  # fmt: skip
+    aim, elevation = np.array(CAMERA.tray_aim), math.radians(CAMERA.tray_elevation_deg)
     cameras = []
-    for eye in CAMERA.passive_eyes:
-        eye = np.array(eye)
-        forward = (target - eye) / np.linalg.norm(target - eye)
-        up = np.array([0.0, 0.0, 1.0]) - forward[2] * forward
-        cameras.append(Camera(eye=eye, forward=forward, up=up / np.linalg.norm(up), fov_deg=CAMERA.passive_fov_deg))
+    for azimuth, distance in zip(CAMERA.tray_azimuths_deg, CAMERA.tray_distances, strict=True):
+        azimuth = math.radians(azimuth)
+        away = np.array([math.cos(elevation) * math.cos(azimuth), math.cos(elevation) * math.sin(azimuth),
+                         math.sin(elevation)])  # fmt: skip
+        cameras.append(_camera_at(aim + distance * away, aim, CAMERA.tray_fov_deg))
     return cameras
+
+
+def _camera_at(eye: np.ndarray, target: np.ndarray, fov_deg: float) -> Camera:
+    """A camera at ``eye`` looking at ``target``, the image's up as near the world's up as its line of sight
+    allows."""
+    forward = (target - eye) / np.linalg.norm(target - eye)
+    up = np.array([0.0, 0.0, 1.0]) - forward[2] * forward
+    return Camera(eye=eye, forward=forward, up=up / np.linalg.norm(up), fov_deg=fov_deg)

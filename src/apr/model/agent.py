@@ -35,6 +35,15 @@ from apr.model.sac import (
 )
 
 Policy = Literal["grasp", "fixation"]
+FIXATION_REWARDS = {
+    "grasp": "the paper's: 1 when an object was lifted and the tool tip started the grasp within 10 cm of the point "
+             "(Method A); with relabelled points, that reward of each (hindsight relabelling)",
+    "tip-proximity": "ours, the robot's knowledge only: when an object was lifted, 1 - d / 10 cm, d from the point to "
+                     "the tool tip when the grasp started (0 beyond 10 cm, or without a lift)",
+    "proximity": "shaping from the simulator (a flag, never a Table 1 row): 1 - d / R, d from the point to the "
+                 "nearest object centre as the simulator reports it",
+}  # fmt: skip
+"""What the fixation bandit can regress (``ModelConfig.fixation_reward``)."""
 NUM_VIEWS = 3  # views rendered per step around the fixation point (paper, Method C)
 PROPRIOCEPTION_ORIGIN = (0.55, 0.0, 0.0)
 """m: the middle of the drop area in x and y, between the tray floor and the gripper's start in z."""
@@ -149,9 +158,15 @@ class FixationBatch:
     """(B, 3) in [-1, 1]."""
     reward: torch.Tensor
     """(B,): the episode's sparse grasp reward."""
+    lifted: torch.Tensor | None = None
+    """(B,) 0/1: an object was lifted by the episode's grasp (what the grasp reward reads)."""
+    grasp_tip: torch.Tensor | None = None
+    """(B, 3): the tool tip when the grasp started (m; NaN where no grasp was attempted), the robot's own pose. With
+    ``lifted`` it gives the grasp reward that any other fixation point would have earned (hindsight relabelling)."""
     object_centres: torch.Tensor | None = None
     """(B, N, 3): the objects' centres when the point was chosen (m; NaN rows pad scenes with fewer objects),
-    from the simulator: what the proximity reward is computed from, never a policy input."""
+    from the simulator: what the proximity reward (shaping from the simulator, a flag) is computed from, never a
+    policy input."""
 
 
 def fixation_points(action: torch.Tensor) -> torch.Tensor:
@@ -174,6 +189,27 @@ def proximity_reward(action: torch.Tensor, object_centres: torch.Tensor, radius:
     offsets = fixation_points(action)[:, :, None, :] - object_centres[:, None, :, :]  # (B, K, N, 3)
     distance = offsets.norm(dim=-1).nan_to_num(nan=float("inf")).amin(dim=-1)  # (B, K)
     return 1.0 - distance.clamp(max=radius) / radius
+
+
+def hindsight_grasp_reward(action: torch.Tensor, lifted: torch.Tensor, grasp_tip: torch.Tensor, radius: float,
+                           profile: Literal["ball", "cone"] = "ball") -> torch.Tensor:  # fmt: skip
+    """The grasp reward each fixation action would have earned in an episode that ended as this one did.
+
+    The paper's reward of a learned fixation is 1 when an object was lifted and the tool tip was within
+    ``radius`` (10 cm) of the fixation point when the grasp started (Method A): a function of what the robot knows
+    (whether something was lifted, where its own tool tip was), so it is exact for any other point too (hindsight
+    relabelling, Andrychowicz et al. 2017). ``profile="ball"`` is that reward; ``"cone"`` (ours) falls from 1 at the
+    tool tip to 0 at ``radius``, so that the points nearest the grasp earn most.
+
+    Args:
+        action: (B, K, 3) fixation actions in [-1, 1]; lifted: (B,) 0/1; grasp_tip: (B, 3), NaN without an attempt.
+
+    Returns:
+        (B, K) in [0, 1]; 0 wherever nothing was lifted or no grasp was attempted.
+    """
+    distance = (fixation_points(action) - grasp_tip[:, None, :]).norm(dim=-1)  # (B, K), NaN without an attempt
+    near = (distance <= radius).to(action.dtype) if profile == "ball" else 1.0 - distance.clamp(max=radius) / radius
+    return (lifted[:, None] > 0).to(action.dtype) * near.nan_to_num(nan=0.0)
 
 
 def resolve_device(name: str) -> torch.device:
@@ -464,21 +500,29 @@ class APRAgent:
         return gqn_elbo_loss(self._generator, r, query_poses, query_images, pixel_sigma(step, self.config), noise)
 
     def _bandit_targets(self, batch: FixationBatch) -> tuple[torch.Tensor, torch.Tensor]:
-        """The fixation critic's (action, reward) pairs per sample: (B, K, 3) and (B, K). With the grasp reward,
-        the chosen action and the episode's reward (K = 1); with the proximity reward, the chosen action and
-        ``fixation_relabels`` uniform ones, each with the reward it would have earned in that scene."""
+        """The fixation critic's (action, reward) pairs per sample: (B, K, 3) and (B, K): the chosen action, then
+        ``fixation_relabels`` uniform ones, each with the reward it would have earned (:data:`FIXATION_REWARDS`).
+        Without relabelled points and with the grasp reward: the chosen action and the episode's reward (K = 1)."""
         config = self.config
-        if config.fixation_reward == "grasp":
-            return batch.action[:, None], batch.reward[:, None]
-        if batch.object_centres is None:
-            raise ValueError("the proximity reward needs the fixation samples' object centres")
         actions = batch.action[:, None].float()
+        if config.fixation_reward == "grasp" and not config.fixation_relabels:
+            return actions, batch.reward[:, None].float()
         if config.fixation_relabels:
             shape = (len(batch.action), config.fixation_relabels, actions.shape[-1])
             uniform = torch.rand(shape, generator=self.rng, device=self.device) * 2.0 - 1.0
             actions = torch.cat([actions, uniform], dim=1)
-        centres = batch.object_centres.float()
-        return actions, proximity_reward(actions, centres, config.fixation_proximity_radius)
+        if config.fixation_reward == "proximity":
+            if batch.object_centres is None:
+                raise ValueError("the proximity reward needs the fixation samples' object centres")
+            return actions, proximity_reward(actions, batch.object_centres.float(), config.fixation_proximity_radius)
+        if batch.lifted is None or batch.grasp_tip is None:
+            raise ValueError("relabelling the grasp reward needs the fixation samples' lift and grasp tip")
+        profile = "ball" if config.fixation_reward == "grasp" else "cone"
+        rewards = hindsight_grasp_reward(actions, batch.lifted.float(), batch.grasp_tip.float(),
+                                         REWARD.fixation_radius, profile)  # fmt: skip
+        if profile == "ball":  # the chosen point's reward is the episode's own (the same, up to rounding at the rim)
+            rewards[:, 0] = batch.reward.float()
+        return actions, rewards
 
     def update(self, grasp_batch: GraspBatch, fixation_batch: FixationBatch | None, step: int) -> dict[str, float]:
         """One joint step: ELBO + grasp SAC + fixation SAC; ``step`` is the update count (schedules).

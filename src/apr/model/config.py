@@ -121,18 +121,20 @@ class ModelConfig:
     """Grasp transitions per update (Haarnoja et al. 2018: 256)."""
     fixation_batch_size: int = 256
     """Fixation (bandit) samples per update (Haarnoja et al. 2018: 256)."""
-    fixation_reward: Literal["grasp", "proximity"] = "grasp"
-    """What the fixation bandit regresses. "grasp": the episode's sparse grasp reward (paper, Method A).
-    "proximity" (ours, the recipe of the learned-fixation presets): ``1 - min(d, R) / R``, d the distance from the
-    chosen point to the nearest object centre of the scene at the fixation action (the simulator's, as rewards may
-    be), R = ``fixation_proximity_radius`` (docs/decisions.md: at CPU budgets the grasp reward teaches a place, not
-    to look at objects)."""
+    fixation_reward: Literal["grasp", "tip-proximity", "proximity"] = "grasp"
+    """What the fixation bandit regresses (:data:`apr.model.agent.FIXATION_REWARDS`). "grasp" (paper, Method A: the
+    fixation policy "is optimized using the grasp reward only"): 1 when an object was lifted and the tool tip started
+    the grasp within 10 cm of the point. "tip-proximity" (ours, from the robot's knowledge only): when an object was
+    lifted, ``1 - d / 10 cm``, d from the point to the tool tip at the grasp's start. "proximity" (shaping from the
+    simulator, never in a Table 1 row): ``1 - min(d, R) / R``, d from the point to the nearest object centre as the
+    simulator reports it, R = ``fixation_proximity_radius``."""
     fixation_proximity_radius: float = 0.15
-    """m: R of the proximity reward (ours; beyond it a point earns 0)."""
+    """m: R of the "proximity" reward (ours; beyond it a point earns 0)."""
     fixation_relabels: int = 0
-    """With the proximity reward: per bandit sample this many more fixation actions, uniform in the action box,
-    each with the proximity reward it would have earned in that scene (ours: hindsight relabelling, possible
-    because that reward is a known function of the scene; 0 = the chosen action only)."""
+    """Per bandit sample, this many more fixation actions, uniform in the action box, each with the reward it would
+    have earned in that episode (hindsight relabelling, Andrychowicz et al. 2017; ours): exact for every reward
+    above, each a known function of the episode's end (the lift and the tool tip) or, for "proximity", of the
+    scene. 0: the chosen action only (the paper)."""
     fixation_critic: Literal["tiled", "map"] = "tiled"
     """The fixation bandit's critics. "tiled": the action tiled over r's grid, as the grasp critics (paper, Method
     B). "map" (ours): the conv block and fully connected layer give a value per point of a 12 x 12 lattice over the

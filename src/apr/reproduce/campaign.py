@@ -34,7 +34,7 @@ from apr.commands import checks
 from apr.model.config import ModelConfig
 from apr.reproduce.paper import PAPER_PRESETS
 from apr.reproduce.runs import final_eval, read_config, read_run
-from apr.reproduce.table import write_table1
+from apr.reproduce.table import build_table1, write_readme_block, write_table1
 from apr.train.checkpoints import write_text_atomically
 from apr.train.config import CPU_PREFIX, PRESETS, SCALE_FREE_MODEL_FIELDS, TrainConfig, preset
 from apr.train.workers import WorkersFactory
@@ -91,6 +91,9 @@ class Table1Args:
     both``), on as many held-out episodes as its final evaluation, into ``RUN/eval/blind_both_GRASPS.json``."""
     table_only: bool = False
     """Train and evaluate nothing: write table1.md, table1.json and figure4.png from the runs already under OUT."""
+    readme: Path | None = None
+    """Also write the table's compact block into this file, between its ``<!-- table1-cpu -->`` markers (the
+    project's README.md)."""
 
     def preset_names(self) -> list[str]:
         """The presets the runs start from: the paper names, or their CPU scale."""
@@ -358,6 +361,7 @@ def problems(args: Table1Args) -> list[str | None]:
           for name in ("grasps", "eval_episodes", "replay_capacity") if getattr(args, name) is not None),
         checks.at_least("--random-grasps", args.random_grasps, 0) if args.random_grasps is not None else None,
         checks.output_folder("--out", args.out),
+        f"--readme {args.readme} is not a file" if args.readme is not None and not args.readme.is_file() else None,
     ]  # fmt: skip
 
 
@@ -393,6 +397,9 @@ def run(args: Table1Args, overrides: dict[str, Any] | None = None, executor: Cam
     )
     path = write_table1(present, args.out / "table1.md", args.preset_names(), source)
     print(f"wrote {path}")
+    if args.readme is not None:
+        write_readme_block(args.readme, build_table1(present, args.preset_names()))
+        print(f"wrote the table's block in {args.readme}")
     if failed:
         raise SystemExit(f"{len(failed)} run(s) failed: " + ", ".join(str(plan.run_dir) for plan in failed))
     return path

@@ -22,10 +22,14 @@ PAPER_TABLE1: dict[str, PaperResult] = {
     "passive-target": PaperResult("76%", None),
     "active-target-no-logpolar": PaperResult("79%", None),
     "active-target-no-representation": PaperResult('"negligible improvement" (no number)', None),
+    "passive-target-no-representation": PaperResult(
+        'representation learning "benefited both passive and active models" (Discussion; no number)', None
+    ),
     "active-learned-6d": PaperResult("85% after 70K grasps", 70_000),
     "active-learned-4d": PaperResult("85% after 25K grasps", 25_000),
 }
-"""The paper's Table 1, and its section 4C for the ablation without representation learning."""
+"""The paper's Table 1, its section 4C for the ablation without representation learning, and its Discussion for the
+passive model without it."""
 
 PAPER_PRESETS: tuple[str, ...] = tuple(PAPER_TABLE1)
 """The presets of Table 1, in the paper's order."""

@@ -180,6 +180,13 @@ def training_description(manifest: dict) -> str:
         text += f" in {manifest['train_minutes']:.1f} minutes of training"
     if manifest.get("machine"):
         text += f" on {manifest['machine']}"
+    config = manifest.get("config", {})
+    env, model = config.get("env", {}), config.get("model", {})
+    if env.get("env_id"):
+        text += f", in `{env['env_id']}`"
+    if env.get("target") == "learned":
+        text += (f", its fixation bandit learning from the {model.get('fixation_reward', 'grasp')} reward with "
+                 f"{model.get('fixation_relabels', 0)} relabelled points a sample")  # fmt: skip
     evaluation = manifest.get("final_eval")
     if evaluation:
         text += (

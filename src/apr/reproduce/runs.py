@@ -77,15 +77,27 @@ def find_run_dirs(paths: Iterable[Path]) -> list[Path]:
     return found
 
 
+class UnreadableFile(ValueError):
+    """A file of a run folder that cannot be read as what it should be (the message names it)."""
+
+
+def read_json(path: Path) -> dict:
+    """A JSON file of a run folder; :class:`UnreadableFile` naming it when it is not JSON."""
+    try:
+        return json.loads(Path(path).read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise UnreadableFile(f"{path} is not valid JSON ({error}): restore it, or move its run folder away") from None
+
+
 def read_config(run_dir: Path) -> dict:
-    return json.loads((run_dir / "config.json").read_text())
+    return read_json(run_dir / "config.json")
 
 
 def eval_results(run_dir: Path) -> list[dict]:
     """Every evaluation of the run (``eval/eval_*.json``), by increasing grasps."""
     results = []
     for path in sorted((run_dir / "eval").glob("eval_*.json")):
-        result = json.loads(path.read_text())
+        result = read_json(path)
         result.setdefault("grasps", int(path.stem.split("_")[-1]))
         result["path"] = str(path)
         results.append(result)

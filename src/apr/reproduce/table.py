@@ -17,10 +17,19 @@ from pathlib import Path
 
 import numpy as np
 
-from apr.reproduce.orderings import MIN_SEEDS, NEGLIGIBLE_POINTS, PAPER_ORDERINGS, bootstrap_difference, verdict
+from apr.reproduce.orderings import (
+    MEASURES,
+    MIN_SEEDS,
+    PAPER_ORDERINGS,
+    Measure,
+    SeedResult,
+    bootstrap_difference,
+    evaluations_for,
+    verdict,
+)
 from apr.reproduce.paper import PAPER_PRESETS, PAPER_TABLE1, paper_row
 from apr.reproduce.plot import plot_learning_curves
-from apr.reproduce.runs import RunSummary, find_run_dirs, read_run
+from apr.reproduce.runs import RunSummary, eval_results, find_run_dirs, read_run
 from apr.train.checkpoints import write_text_atomically
 from apr.train.config import CPU_PREFIX, PRESETS, TABLE1_CPU_GRASPS
 from apr.train.evaluation import wilson_interval
@@ -67,6 +76,17 @@ class TableRow:
         """(successes, episodes) of each seed's final evaluation."""
         return [(int(run.final_eval["successes"]), int(run.final_eval["episodes"])) for run in self.runs]
 
+    def seed_measures(self, measure: Measure) -> list[SeedResult]:
+        """Each seed's evaluations that ``measure`` reads (:func:`apr.reproduce.orderings.evaluations_for`), up to
+        its final evaluation."""
+        found = []
+        for run in self.runs:
+            final = int(run.final_eval["grasps"])
+            evaluations = [(int(item["grasps"]), int(item["successes"]), int(item["episodes"]))
+                           for item in eval_results(run.run_dir) if int(item["grasps"]) <= final]  # fmt: skip
+            found.append(evaluations_for(measure, evaluations))
+        return found
+
     @property
     def seed_mean(self) -> float | None:
         return float(np.mean(self.seed_rates)) if self.runs else None
@@ -93,6 +113,13 @@ class TableRow:
     def blind_rates(self) -> list[float]:
         """The blind success of each run whose final policy was evaluated blind."""
         return [float(run.blind_eval["success_rate"]) for run in self.runs if run.blind_eval is not None]
+
+    @property
+    def look_cm(self) -> list[float]:
+        """With a learned fixation: each seed's median distance (cm) from where it looked to the nearest object, in
+        its final evaluation."""
+        return [float(run.final_eval["fixation"]["median_cm"]) for run in self.runs
+                if (run.final_eval.get("fixation") or {}).get("median_cm") is not None]  # fmt: skip
 
     @property
     def blind_mean(self) -> float | None:
@@ -147,7 +174,7 @@ def _budget(name: str) -> str:
 
 def _row_cells(row: TableRow) -> list[str]:
     if not row.runs:
-        return [row.preset, row.paper, "not run", "", "", "", "0", "", "", _budget(row.preset)]
+        return [row.preset, row.paper, "not run", "", "", "", "0", "", "", _budget(row.preset), ""]
     low, high = row.pooled_interval
     pooled = (
         f"{format_percent(row.pooled_rate)} ({row.successes}/{row.episodes}) [{format_percent(low)}, "
@@ -173,6 +200,7 @@ def _row_cells(row: TableRow) -> list[str]:
         grasps_text,
         str(row.episodes),
         _budget(row.preset),
+        ", ".join(f"{cm:.2f}" for cm in row.look_cm) or "-",
     ]
 
 
@@ -195,6 +223,7 @@ def render_table1(rows: Sequence[TableRow], source: str = "") -> str:
         "grasps",
         "eval episodes",
         "full budget of the preset",
+        "looks: median cm to the nearest object, per seed",
     ]
     lines = ["# Table 1: grasp success on held-out objects", ""]
     if source:
@@ -265,20 +294,21 @@ def render_table1(rows: Sequence[TableRow], source: str = "") -> str:
 
 
 def orderings(rows: Sequence[TableRow]) -> list[dict]:
-    """Each ordering of :data:`PAPER_ORDERINGS` whose two rows have runs: the difference of the rows' seed means,
-    its bootstrap 95% interval, and the verdict (:mod:`apr.reproduce.orderings`)."""
+    """Each claim of :data:`PAPER_ORDERINGS` whose two rows have runs: the paper's sentence, the difference of the
+    rows' seed means on its measure, its bootstrap 95% interval, and the verdict (:mod:`apr.reproduce.orderings`)."""
     by_row = {paper_row(row.preset): row for row in rows if row.runs and paper_row(row.preset)}
     found = []
     for ordering in PAPER_ORDERINGS:
         if ordering.first in by_row and ordering.second in by_row:
             first, second = by_row[ordering.first], by_row[ordering.second]
-            difference = bootstrap_difference(first.seed_results, second.seed_results)
+            difference = bootstrap_difference(first.seed_measures(ordering.measure),
+                                              second.seed_measures(ordering.measure))  # fmt: skip
             seeds = (len(first.runs), len(second.runs))
             found.append({
-                "claim": ordering.claim, "kind": ordering.kind, "paper": ordering.paper,
-                "first": first.preset, "second": second.preset,
+                "claim": ordering.claim, "measure": ordering.measure, "sentence": ordering.sentence,
+                "where": ordering.where, "first": first.preset, "second": second.preset,
                 "seeds": list(seeds), "difference": difference.difference,
-                "ci_low": difference.low, "ci_high": difference.high, "verdict": verdict(ordering, difference, seeds),
+                "ci_low": difference.low, "ci_high": difference.high, "verdict": verdict(difference, seeds),
             })  # fmt: skip
     return found
 
@@ -289,32 +319,83 @@ def _ordering_lines(rows: Sequence[TableRow]) -> list[str]:
         return []
     lines = [
         "",
-        "## The paper's orderings",
+        "## The paper's claims",
         "",
-        "| claim | the paper | seeds | difference of the means | bootstrap 95% CI | verdict |",
-        "| --- | --- | --- | --- | --- | --- |",
+        "| the paper says | where | ahead | behind | measure | seeds | difference of the means | bootstrap 95% CI "
+        "| verdict |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for item in found:
         lines.append(
-            f"| {item['claim']} | {item['paper']} | {item['seeds'][0]} and {item['seeds'][1]} | "
-            f"{100 * item['difference']:+.1f} pts | [{100 * item['ci_low']:+.1f}, {100 * item['ci_high']:+.1f}] | "
+            f'| "{item["sentence"]}" | {item["where"]} | {item["first"]} | {item["second"]} | {item["measure"]} | '
+            f"{item['seeds'][0]} and {item['seeds'][1]} | {100 * item['difference']:+.1f} pts | "
+            f"[{100 * item['ci_low']:+.1f}, {100 * item['ci_high']:+.1f}] | "
             f"**{item['verdict']}**{f' (fewer than {MIN_SEEDS} seeds)' if min(item['seeds']) < MIN_SEEDS else ''} |"
         )
+    used: list[Measure] = list(dict.fromkeys(item["measure"] for item in found))
     lines += [
         "",
+        "- Each claim says the *ahead* row does better than the *behind* one, as its sentence reads; the difference "
+        "is the ahead row's mean minus the behind row's.",
+        *(f"- *{measure}*: {MEASURES[measure]}." for measure in used),
         f"- The interval: {BOOTSTRAP_TEXT}.",
-        "- *beats*: holds when the interval lies above 0, reversed when below, not resolved when it holds 0. *does "
-        f"about as well as*: holds when the interval lies within ±{NEGLIGIBLE_POINTS:g} points, reversed when it "
-        "excludes 0, otherwise not resolved.",
+        "- A claim holds when the interval lies above 0, is reversed when it lies below 0, and is not resolved when "
+        "it holds 0.",
     ]
     return lines
 
 
 BOOTSTRAP_TEXT = (
-    "10,000 resamples, each drawing every row's seeds with replacement and then each drawn seed's episodes again "
-    "(binomial at its rate); the 2.5th and 97.5th percentiles of the difference of the resampled means. A verdict "
-    f"needs {MIN_SEEDS} seeds in each row; with 3 to 5 it is coarse"
+    "10,000 resamples, each drawing every row's seeds with replacement and then each drawn seed's evaluations "
+    "again (binomial at each one's rate); the 2.5th and 97.5th percentiles of the difference of the resampled means. "
+    f"A verdict needs {MIN_SEEDS} seeds in each row; with 3 to 5 it is coarse"
 )
+
+
+README_BLOCK = "table1-cpu"
+"""The name of the README's block that :func:`readme_block` writes (``<!-- table1-cpu -->``)."""
+
+
+def readme_block(rows: Sequence[TableRow]) -> str:
+    """Table 1 and the paper's claims, compact, for the README: each row's per-seed mean and spread, its blind mean
+    and attempts; each claim with its verdict (:func:`write_readme_block` puts it between the README's markers)."""
+    lines = ["| row | paper | ours: held-out success, mean ± std over seeds | seeds | blind | attempts | looks |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]  # fmt: skip
+    for row in rows:
+        if not row.runs:
+            lines.append(f"| `{row.preset}` | {row.paper} | not run yet | 0 | | | |")
+            continue
+        spread = f" ± {100 * row.seed_std:.1f}" if row.seed_std is not None else ""
+        blind = format_percent(row.blind_mean) if row.blind_mean is not None else "-"
+        looks = ", ".join(f"{cm:.1f}" for cm in row.look_cm) + " cm" if row.look_cm else "-"
+        lines.append(f"| `{row.preset}` | {row.paper} | {format_percent(row.seed_mean)}{spread} | {len(row.runs)} | "
+                     f"{blind} | {row.attempts}/{row.episodes} | {looks} |")  # fmt: skip
+    if any(row.look_cm for row in rows):
+        lines += ["", "*looks*: with a learned fixation, each seed's median distance from where it looked to the "
+                  "nearest object (the middle of the drop area: about 5.4 cm)."]  # fmt: skip
+    found = orderings(rows)
+    if found:
+        lines += ["", "| the paper says | ahead | behind | measure | difference [95% CI] | verdict |",
+                  "| --- | --- | --- | --- | --- | --- |"]  # fmt: skip
+        for item in found:
+            short = f"{item['seeds'][0]} and {item['seeds'][1]} seeds"
+            lines.append(
+                f'| "{item["sentence"]}" | {paper_row(item["first"])} | {paper_row(item["second"])} | '
+                f"{item['measure']} | {100 * item['difference']:+.1f} pts [{100 * item['ci_low']:+.1f}, "
+                f"{100 * item['ci_high']:+.1f}] ({short}) | **{item['verdict']}** |"
+            )
+    return "\n".join(lines) + "\n"
+
+
+def write_readme_block(readme: Path, rows: Sequence[TableRow]) -> None:
+    """Replace the text between ``<!-- table1-cpu -->`` and ``<!-- /table1-cpu -->`` in ``readme`` with
+    :func:`readme_block`; raise ``ValueError`` when the file has no such block."""
+    text = readme.read_text()
+    start, end = f"<!-- {README_BLOCK} -->\n", f"<!-- /{README_BLOCK} -->"
+    if start not in text or end not in text:
+        raise ValueError(f"{readme} has no {start.strip()} ... {end} block to replace")
+    head, rest = text.split(start, 1)
+    write_text_atomically(readme, head + start + readme_block(rows) + end + rest.split(end, 1)[1])
 
 
 def table1_json(rows: Sequence[TableRow], source: str = "") -> dict:
@@ -325,7 +406,7 @@ def table1_json(rows: Sequence[TableRow], source: str = "") -> dict:
             {
                 "preset": row.preset, "paper_row": paper_row(row.preset), "paper": row.paper,
                 "seed_mean": row.seed_mean, "seed_std": row.seed_std, "blind_mean": row.blind_mean,
-                "attempts": row.attempts, "episodes": row.episodes,
+                "attempts": row.attempts, "episodes": row.episodes, "look_cm": row.look_cm,
                 "seeds": [
                     {
                         "seed": run.seed, "run": run.run_dir.name, "trained_as": run.trained_as or None,

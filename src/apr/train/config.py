@@ -24,25 +24,29 @@ from apr.envs.grasp_env import render_size_problem
 from apr.model import pretrained
 from apr.model.config import ModelConfig
 
-ACTIVE_ENV_ID = "apr/ActiveGrasp-v2"
+ACTIVE_ENV_ID = "apr/ActiveGrasp-v4"
 """The active model's environment: the head camera that looks."""
-PASSIVE_ENV_ID = "apr/PassiveGrasp-v2"
-"""The passive model's environment: three static cameras, no head, no log-polar warp."""
+PASSIVE_ENV_ID = "apr/PassiveGrasp-v4"
+"""The passive model's environment: three static cameras framed on the tray, no head, no log-polar warp."""
 EnvId = Literal[
-    "apr/ActiveGrasp-v2",
-    "apr/PassiveGrasp-v2",
+    "apr/ActiveGrasp-v4",
+    "apr/PassiveGrasp-v4",
+    "apr/BenchmarkGrasp-v4",
     "apr/ActiveGrasp-v3",
     "apr/PassiveGrasp-v3",
+    "apr/ActiveGrasp-v2",
+    "apr/PassiveGrasp-v2",
     "apr/ActiveGrasp-v1",
     "apr/PassiveGrasp-v1",
     "apr/ActiveGrasp-v0",
     "apr/PassiveGrasp-v0",
 ]
-"""v3: as v2, and a change of tilt turns the gripper about its tool tip rather than its wrist (measured against v2
-before the presets take it). v2: the 15-step limit is part of the task (it terminates; the observation has the steps
-left) and a tilted gripper can reach the grasp height. v1: the same limit, but the workspace's floor holds the
-end-effector link, so a gripper tilted by more than about 40 degrees never reaches the grasp height; runs saved
-before v2 name it. v0: the limit truncates, no clock; runs saved before v1 name it."""
+"""v4 (the presets'): the passive cameras are framed on the tray; the active environment is v2's. v3: v2 with a
+change of tilt turning the gripper about its tool tip (measured and not taken). v2: the 15-step limit is part of the
+task (it terminates; the observation has the steps left) and a tilted gripper can reach the grasp height; the
+passive cameras see the tray across a third of each image. v1: the same limit, but a gripper tilted by more than
+about 40 degrees never reaches the grasp height. v0: the limit truncates, no clock. Runs saved on each evaluate on
+it (docs/environments.md, "Versions")."""
 
 
 def is_passive(env_id: str) -> bool:
@@ -103,7 +107,7 @@ class EnvConfig:
     """The head's views at reset (active env only): "drawn" around the point as at every step (paper, Method A:
     "we sample a viewpoint from a sphere centered on it"), or "fixed" (ours): the same three viewpoints in every
     episode (``HEAD.fixed_initial_views``), so that where an object lies in the first images says where it lies on
-    the tray (docs/benchmarks.md, "What the representation knows")."""
+    the tray (docs/investigations.md, "What the representation knows")."""
 
     def make_kwargs(self, split: str) -> dict[str, Any]:
         """Keyword arguments of ``gymnasium.make(self.env_id, ...)`` for ``split``."""
@@ -381,12 +385,13 @@ RECIPE: dict[str, Any] = dict(heads_see_proprioception=True, heads_see_steps_lef
 """The learning recipe of every preset of Table 1, at both scales (ours; docs/decisions.md, "One recipe for Table
 1"): the heads see the gripper pose g and the grasp steps left beside r (the 15-step limit is part of the task:
 "The 15-step limit"), the entropy temperature starts at 0.01, and the grasp critics learn from 2-step returns
-("2-step returns"). With a learned
-fixation the heads also see the point chosen, and the bandit learns from :data:`PROXIMITY_BANDIT`
-(:func:`with_recipe`). Never the simulator's target: the rows differ in what they see."""
-PROXIMITY_BANDIT: dict[str, Any] = dict(fixation_reward="proximity", fixation_relabels=8)
-"""The fixation bandit of the recipe (ours): the proximity reward, 8 relabelled points per sample
-(docs/decisions.md, "The fixation bandit's reward")."""
+("2-step returns"). With a learned fixation the heads also see the point chosen, and the bandit learns from
+:data:`HINDSIGHT_BANDIT` (:func:`with_recipe`). Never the simulator's target or objects: the rows differ in what
+they see."""
+HINDSIGHT_BANDIT: dict[str, Any] = dict(fixation_reward="grasp", fixation_relabels=8)
+"""The fixation bandit of the recipe: the paper's grasp reward (Method A), and 8 more points per sample each with the
+grasp reward it would have earned, which the lift and the tool tip at the grasp's start give exactly (hindsight
+relabelling, ours; docs/decisions.md, "The fixation bandit's reward")."""
 CPU_MODEL: dict[str, Any] = dict(batch_size=32, gqn_batch_size=8, gqn_update_every=2, channels_last=True)
 """How the CPU scale's learner saves time (ours): batch 32 (8 of them for the ELBO), the ELBO on every second update
 (about half of a tiny update's cost) and channels-last convolutions (about 9% less on this CPU); docs/decisions.md,
@@ -398,16 +403,15 @@ CPU_RUN: dict[str, Any] = dict(
 )  # fmt: skip
 """The CPU presets' run: an hour of a 2-core CPU, a 30-episode evaluation every 200 grasps, 100 at the end."""
 CPU_LOOK_ENV: dict[str, Any] = dict(initial_views="fixed")
-CPU_LOOK_MODEL: dict[str, Any] = dict(fixation_critic="map", fixation_relabels=64, fixation_proximity_radius=0.10)
+CPU_LOOK_MODEL: dict[str, Any] = dict(fixation_critic="map", fixation_relabels=64)
 """How a learned fixation looks at CPU scale (ours; the paper presets keep the paper's drawn initial views, tiled
-critic, 8 relabelled points and 15 cm radius): the views at reset from three fixed viewpoints, so that where an object
-lies in the first images says where it lies on the tray, and the fixation bandit's critic as a map over the fixation
-box, whose best point is the deterministic look, regressing 64 relabelled points per sample, which it reads from one
-map at little cost, with a proximity reward that falls to 0 at 10 cm (docs/decisions.md, "The fixation critic";
-docs/benchmarks.md, "The fixation critic in training")."""
+critic and 8 relabelled points): the views at reset from three fixed viewpoints, so that where an object lies in the
+first images says where it lies on the tray, and the fixation bandit's critic as a map over the fixation box, whose
+best point is the deterministic look, regressing 64 relabelled points per sample, which it reads from one map at
+little cost (docs/decisions.md, "The fixation critic")."""
 TABLE1_CPU_GRASPS = 600
 """The grasp budget of every row of Table 1 at CPU scale (ours): where the recipe's learned-fixation run levels off
-on the 2-core CPU (its held-out success at 200, 400 and 600 grasps: 63, 67 and 65% for seed 0; docs/benchmarks.md,
+on the 2-core CPU (its held-out success at 200, 400 and 600 grasps: 63, 67 and 65% for seed 0; docs/investigations.md,
 "Learned fixation"), about 27 minutes of that machine per run with its evaluations at one update per grasp step, about
 35 expected at :data:`TABLE1_CPU_UPDATES_PER_STEP`. No time limit, so that every row gets the same grasps whatever
 else shares the machine."""
@@ -415,22 +419,25 @@ TABLE1_CPU_UPDATES_PER_STEP = 2.0
 """Joint updates per grasp step of the Table 1 rows at CPU scale (ours): at batch 32 they replay 64 transitions per
 collected step, as the paper presets' 0.25 updates at batch 256 do. Against one update, on seeds 0, 1 and 2 of
 ``cpu-active-target``: 40, 42 and 56% held-out at 600 grasps against 37, 24 and 33%, each seed ahead
-(docs/decisions.md, "One recipe for Table 1, two scales"; docs/benchmarks.md, "The 15-step limit")."""
+(docs/decisions.md, "One recipe for Table 1, two scales"; docs/investigations.md, "The 15-step limit")."""
 TABLE1_CPU_RUN: dict[str, Any] = {**CPU_RUN, "total_grasps": TABLE1_CPU_GRASPS, "max_train_minutes": 0.0,
                                   "updates_per_step": TABLE1_CPU_UPDATES_PER_STEP}  # fmt: skip
 """The run of a CPU-scale Table 1 preset: :data:`CPU_RUN` with :data:`TABLE1_CPU_GRASPS`, no time limit and
 :data:`TABLE1_CPU_UPDATES_PER_STEP`."""
 CPU_PREFIX = "cpu-"
 """A paper preset's CPU scale is named ``cpu-PRESET`` (:func:`cpu_scale`)."""
-RENAMED_PRESETS = {"cpu-learned-4d": "cpu-active-learned-4d"}
+RENAMED_PRESETS = {
+    "cpu-learned-4d": "cpu-active-learned-4d",
+    "cpu-learned-4d-grasp-reward": "cpu-active-learned-4d-no-relabel",
+}
 """Presets' earlier names, as old runs' config.json files give them: the settings are the same."""
 
 
 def with_recipe(config: TrainConfig) -> TrainConfig:
     """``config`` with the learning settings of :data:`RECIPE` (and, with a learned fixation, the point chosen
-    in the heads' input and :data:`PROXIMITY_BANDIT`)."""
+    in the heads' input and :data:`HINDSIGHT_BANDIT`)."""
     learned = config.env.learned_fixation
-    changes = {**RECIPE, "heads_see_fixation": learned, **(PROXIMITY_BANDIT if learned else {})}
+    changes = {**RECIPE, "heads_see_fixation": learned, **(HINDSIGHT_BANDIT if learned else {})}
     return dataclasses.replace(config, model=config.model.replace(**changes))
 
 
@@ -461,6 +468,10 @@ PAPER_PRESET_LIST: list[tuple[str, tuple[str, TrainConfig]]] = [
     _preset("active-target-no-representation",
             "active-target without the generator; RL trains the encoder (paper: negligible improvement)",
             model=ModelConfig(representation=False)),
+    _preset("passive-target-no-representation",
+            "passive-target without the generator; RL trains the encoder (paper: representation learning \"benefited "
+            "both passive and active models\")",
+            env=dict(env_id=PASSIVE_ENV_ID, foveation="resize"), model=ModelConfig(representation=False)),
     _preset("active-learned-6d", "the full APR: learned fixation, 6-DoF (Table 1: 85% after 70K grasps)",
             env=dict(target="learned")),
     _preset("active-learned-4d", "learned fixation, 4-DoF (Table 1: 85% after 25K grasps)",
@@ -477,6 +488,15 @@ CPU_SCALE = {
 }  # fmt: skip
 """Table 1 at CPU scale (``apr reproduce table1 --scale cpu``)."""
 _LEARNED_4D_CPU = CPU_SCALE["cpu-active-learned-4d"][1]
+
+
+def _learned_4d_variant(name: str, description: str, **model: Any) -> list[tuple[str, tuple[str, TrainConfig]]]:
+    """``cpu-active-learned-4d-NAME``: the CPU learned-fixation row with one change of its fixation bandit."""
+    full = f"cpu-active-learned-4d-{name}"
+    config = dataclasses.replace(_LEARNED_4D_CPU, preset=full, model=_LEARNED_4D_CPU.model.replace(**model))
+    return [(full, (f"cpu-active-learned-4d with {description}", config))]
+
+
 CPU_4D_MODEL: dict[str, Any] = dict(n_step=1)
 """``cpu-4d`` (privileged, not a Table 1 row) keeps the one-step targets its figures in the README were measured
 with."""
@@ -491,11 +511,15 @@ PRESETS: dict[str, tuple[str, TrainConfig]] = {
                 "reaches a coordinate, hardly looks: its blind numbers are in the README",
                 env=dict(dof=4, reveal_target=True, **CPU_RENDERING),
                 model=ModelConfig.tiny(heads_see_fixation=True, **{**RECIPE, **CPU_4D_MODEL}, **CPU_MODEL), **CPU_RUN),
-        ("cpu-learned-4d-grasp-reward",
-         ("cpu-active-learned-4d with the paper's fixation reward: the bandit regresses the episode's grasp reward, "
-          "no relabelling",
-          dataclasses.replace(_LEARNED_4D_CPU, preset="cpu-learned-4d-grasp-reward",
-                              model=_LEARNED_4D_CPU.model.replace(fixation_reward="grasp", fixation_relabels=0)))),
+        *_learned_4d_variant("no-relabel", "the paper's fixation learning to the letter: the bandit regresses the "
+                             "episode's grasp reward of the chosen point only, no relabelling",
+                             fixation_reward="grasp", fixation_relabels=0),
+        *_learned_4d_variant("tip-proximity", "the bandit's relabelled points earn, when an object was lifted, "
+                             "1 - d / 10 cm, d to the tool tip at the grasp's start (ours; the robot's knowledge only)",
+                             fixation_reward="tip-proximity"),
+        *_learned_4d_variant("proximity", "SHAPING FROM THE SIMULATOR, not a Table 1 row: the bandit regresses "
+                             "1 - d / 10 cm, d from the point to the nearest object centre as the simulator reports it",
+                             fixation_reward="proximity", fixation_proximity_radius=0.10),
         _preset("smoke", "tiny sizes, a few grasps: the whole pipeline in about a minute on a CPU",
                 env=dict(target="learned", dof=4, **CPU_RENDERING, **CPU_LOOK_ENV),
                 model=ModelConfig.tiny(gqn_update_every=2, channels_last=True, **CPU_LOOK_MODEL),

@@ -14,13 +14,20 @@ from tqdm import tqdm
 from apr.envs.config import GRASP, REWARD, SCENE
 from apr.model.agent import APRAgent
 from apr.train.config import ConfigError, EnvConfig
-from apr.train.rollout import BLIND_PHASES, EpisodeResult, Policy, Recorder, run_round, stack
+from apr.train.rollout import (
+    BLIND_PHASES,
+    EVAL_SEED,
+    EVAL_SEED_COUNT,
+    EpisodeResult,
+    Policy,
+    Recorder,
+    run_round,
+    stack,
+)
 from apr.train.workers import LocalWorkers, WorkersFactory, pool_renderer
 
 GQN_MEASURE_SCENES = 100
 """Scenes of an evaluation (its first episodes) whose first views the generator's measure takes."""
-EVAL_SEED = 2_000_000_000
-"""Evaluation episodes use fixed seeds (EVAL_SEED + k), the same for every checkpoint and run: paired comparisons."""
 
 
 def wilson_interval(successes: int, trials: int, z: float = 1.959964) -> tuple[float, float]:
@@ -136,7 +143,8 @@ def evaluate_policy(policy: Policy, env: EnvConfig, episodes: int, split: str = 
                     on_mismatch: Literal["refuse", "warn"] = "refuse", blind: str = "",
                     recorder: Recorder | None = None) -> EvalResult:  # fmt: skip
     """Run ``episodes`` episodes of ``policy`` on the evaluation seeds ``EVAL_SEED + k`` (the same episodes for
-    every policy, checkpoint and run); lost episodes are rerun with the next seeds.
+    every policy, checkpoint and run); lost episodes are rerun with the next seeds, up to the last of the
+    ``EVAL_SEED_COUNT`` evaluation seeds (which no training episode gets: :func:`apr.train.rollout.episode_seed`).
 
     Args:
         workers: opens the environments (default: :class:`LocalWorkers`, processes of this machine), as an
@@ -149,8 +157,8 @@ def evaluate_policy(policy: Policy, env: EnvConfig, episodes: int, split: str = 
             whatever the number of workers (at least 2 are opened), so ``episodes`` is rounded up to even.
         recorder: sees every episode's observations, as in training (nothing learns from them here).
     """
-    if episodes < 1:
-        raise ValueError(f"episodes must be at least 1, got {episodes}")
+    if not 1 <= episodes <= EVAL_SEED_COUNT:
+        raise ValueError(f"episodes must be 1 to {EVAL_SEED_COUNT:,} (the evaluation seeds), got {episodes}")
     if blind not in BLIND_PHASES:
         raise ValueError(f"blind must be one of {tuple(BLIND_PHASES)}, got {blind!r}")
     pair = 2 if blind else 1
@@ -169,6 +177,9 @@ def evaluate_policy(policy: Policy, env: EnvConfig, episodes: int, split: str = 
             tqdm.write(f"warning: {problem}")
         while len(done) < episodes:
             count = max(min(len(pool), episodes - len(done)) // pair * pair, pair)
+            if next_seed + count > EVAL_SEED + EVAL_SEED_COUNT:
+                raise RuntimeError(f"{lost} lost episodes spent the {EVAL_SEED_COUNT:,} evaluation seeds; the rest "
+                                   "could be training scenes")  # fmt: skip
             seeds = list(range(next_seed, next_seed + count))
             next_seed += count
             for result in run_round(pool, seeds, policy, env.dof, env.learned_fixation, recorder, blind=blind):

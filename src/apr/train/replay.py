@@ -6,7 +6,9 @@ many environment steps lie between the two frames (1, or up to n for n-step retu
 discounted sum over them). Frames and transitions are
 rings: when a frame is overwritten, the transitions still pointing at it are no longer sampled (each frame
 remembers when it was written, each transition when its frames were). The fixation policy's bandit samples
-(bin-centre observation, fixation action, the episode's grasp reward) live beside them and point at frames too.
+(bin-centre observation, fixation action, the episode's grasp reward, and what the robot knows of how its grasp
+ended: whether an object was lifted and where its tool tip was when the grasp started) live beside them and point at
+frames too.
 """
 
 from __future__ import annotations
@@ -101,6 +103,8 @@ class ReplayBuffer:
         self.f_stamp = np.full(self.fixation_capacity, -1, np.int64)
         self.f_action = np.zeros((self.fixation_capacity, spec.fixation_action_dim), np.float32)
         self.f_reward = np.zeros(self.fixation_capacity, np.float32)
+        self.f_lifted = np.zeros(self.fixation_capacity, np.float32)
+        self.f_tip = np.full((self.fixation_capacity, 3), np.nan, np.float32)
         self.f_centres = np.full((self.fixation_capacity, spec.max_objects, 3), np.nan, np.float32)
         self.f_count = 0
 
@@ -110,7 +114,7 @@ class ReplayBuffer:
         poses = int(np.prod(spec.viewpoint_shape)) + spec.gripper_dim + spec.fixation_dim
         frame = int(np.prod(spec.image_shape)) + 4 * poses + 8 + spec.steps_left
         transition = 8 * 4 + 4 * (spec.grasp_action_dim + 2) + 2
-        fixation = 16 + 4 * (spec.fixation_action_dim + 1 + 3 * spec.max_objects)
+        fixation = 16 + 4 * (spec.fixation_action_dim + 1 + 1 + 3 + 3 * spec.max_objects)
         return (capacity + capacity // 2) * frame + capacity * transition + max(capacity // 4, 1) * fixation
 
     # ----------------------------------------------------------------------------------------------- adding
@@ -132,13 +136,18 @@ class ReplayBuffer:
         self.t_count += 1
 
     def add_fixation(self, obs_ref: tuple[int, int], action: np.ndarray, reward: float,
-                     object_centres: np.ndarray | None = None) -> None:  # fmt: skip
-        """A bandit sample: the observation it chose from, the fixation action, the episode's grasp reward, and
-        the objects' centres (N, 3) when it chose (the simulator's, for rewards only; at most ``max_objects``)."""
+                     object_centres: np.ndarray | None = None, lifted: bool = False,
+                     grasp_tip: np.ndarray | None = None) -> None:  # fmt: skip
+        """A bandit sample: the observation it chose from, the fixation action, the episode's grasp reward, whether
+        an object was lifted and the tool tip (3,) when the grasp started (None: no grasp was attempted), and the
+        objects' centres (N, 3) when it chose (the simulator's, for the proximity flag only; at most
+        ``max_objects``)."""
         i = self.f_count % self.fixation_capacity
         self.f_frame[i], self.f_stamp[i] = obs_ref
         self.f_action[i] = action
         self.f_reward[i] = reward
+        self.f_lifted[i] = float(lifted)
+        self.f_tip[i] = np.nan if grasp_tip is None else np.asarray(grasp_tip, np.float32)
         self.f_centres[i] = np.nan
         if object_centres is not None and len(object_centres):
             kept = np.asarray(object_centres, np.float32)[: self.spec.max_objects]
@@ -174,10 +183,12 @@ class ReplayBuffer:
         }
 
     def sample_fixation(self, batch_size: int, rng: np.random.Generator) -> dict[str, np.ndarray | dict]:
-        """Uniform fixation samples: obs dict of arrays, action, reward, object_centres (B, max_objects, 3)."""
+        """Uniform fixation samples: obs dict of arrays, action, reward, lifted (B,), grasp_tip (B, 3; NaN without
+        an attempt), object_centres (B, max_objects, 3)."""
         index = rng.choice(self._valid_fixations(), size=batch_size)
         return {"obs": self.frames.batch(self.f_frame[index]), "action": self.f_action[index],
-                "reward": self.f_reward[index], "object_centres": self.f_centres[index]}  # fmt: skip
+                "reward": self.f_reward[index], "lifted": self.f_lifted[index], "grasp_tip": self.f_tip[index],
+                "object_centres": self.f_centres[index]}  # fmt: skip
 
     # ------------------------------------------------------------------------------------------ persistence
     def state(self) -> dict[str, np.ndarray]:

@@ -34,9 +34,18 @@ def random_policy(dof: int, rng: np.random.Generator, down_probability: float = 
     return policy
 
 
+EVAL_SEED = 2_000_000_000
+"""Evaluation episodes use fixed seeds (EVAL_SEED + k), the same for every checkpoint and run: paired comparisons."""
+EVAL_SEED_COUNT = 100_000
+"""The evaluation seeds are EVAL_SEED to EVAL_SEED + EVAL_SEED_COUNT - 1; no training episode gets one of them."""
+
+
 def episode_seed(run_seed: int, episode: int) -> int:
-    """The environment seed of the run's ``episode``-th episode."""
-    return int(np.random.SeedSequence([run_seed, episode]).generate_state(1)[0])
+    """The environment seed of the run's ``episode``-th episode: a draw of ``SeedSequence([run_seed, episode])``,
+    moved past the evaluation seeds where it falls among them (about one draw in 43,000), so that no training scene
+    is an evaluation scene."""
+    seed = int(np.random.SeedSequence([run_seed, episode]).generate_state(1)[0])
+    return seed + EVAL_SEED_COUNT if EVAL_SEED <= seed < EVAL_SEED + EVAL_SEED_COUNT else seed
 
 
 @dataclass
@@ -47,6 +56,11 @@ class EpisodeResult:
     grasp_steps: int = 0
     attempted: bool = False
     success: bool = False
+    lifted: int = 0
+    """Objects lifted by the grasp (the lift the paper's grasp reward reads)."""
+    grasp_tip: np.ndarray | None = None
+    """(3,) m: the tool tip when the grasp started, before the fingers closed (the robot's own pose); None when no
+    grasp was attempted."""
     reach_return: float = 0.0
     lost: str = ""
     """Why the episode was lost (its worker died), or empty."""
@@ -189,6 +203,9 @@ def run_round(
             result.tip_distances.append(float(info["tip_fixation_distance"]))
             if answer.terminated or answer.truncated:
                 result.attempted, result.success = info["grasp_attempted"], info["grasp_success"]
+                result.lifted = int(info.get("objects_lifted", 0))
+                if result.attempted:
+                    result.grasp_tip = np.asarray(info["tool_tip"], np.float32).copy()
                 result.fixation_point = info["fixation_point"]
                 del observations[worker]
                 if recorder:

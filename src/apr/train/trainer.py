@@ -144,10 +144,14 @@ class Trainer:
     ``workers`` opens the environment workers (:class:`apr.train.workers.WorkersFactory`; default: local
     processes). It must serve ``config.backend``: a Ray run takes ``workers=apr.cluster.ray_workers.RayWorkers(
     config.ray_address)``, which ``apr train --backend ray`` passes.
+
+    ``agent`` is the learner (default: ``APRAgent(config.resolved().model)``): any object with ``act``, ``update``,
+    ``state_dict``, ``load_state_dict`` and ``device`` as :class:`apr.model.agent.APRAgent` has them, e.g. a subclass
+    with other losses (docs/extending.md, "A new learner").
     """
 
     def __init__(self, config: TrainConfig, run_dir: Path | None = None, *, workers: WorkersFactory | None = None,
-                 _resuming: bool = False):  # fmt: skip
+                 agent: APRAgent | None = None, _resuming: bool = False):  # fmt: skip
         config.check()  # everything is checked and built before a run folder is touched
         self.workers_factory = workers or LocalWorkers()
         if self.workers_factory.backend != config.backend:
@@ -177,7 +181,7 @@ class Trainer:
         except MemoryError:
             raise ConfigError(f"the replay buffer ({need / 2**30:.1f} GiB) does not fit in memory: lower "
                               f"--replay-capacity (now {config.replay_capacity:,})") from None  # fmt: skip
-        self.agent = APRAgent(config.model)
+        self.agent = agent if agent is not None else APRAgent(config.model)
         load_gqn_init(self.agent)  # a resumed run's checkpoint then replaces them
         if self.agent.device.type == "cpu":  # leave the env workers their cores (docs/decisions.md)
             torch.set_num_threads(max(1, (os.cpu_count() or 1) - config.workers))
@@ -222,10 +226,15 @@ class Trainer:
 
     @classmethod
     def resume(
-        cls, run_dir: Path, config: TrainConfig | None = None, *, workers: WorkersFactory | None = None
+        cls,
+        run_dir: Path,
+        config: TrainConfig | None = None,
+        *,
+        workers: WorkersFactory | None = None,
+        agent: APRAgent | None = None,
     ) -> Trainer:
         """Continue the run in ``run_dir`` from its newest intact checkpoint (``config``: the saved one, or a
-        changed copy of it, e.g. with more ``total_grasps``; ``workers``: as for a new run).
+        changed copy of it, e.g. with more ``total_grasps``; ``workers`` and ``agent``: as for a new run).
 
         Nothing in the folder changes until the new configuration has been checked against the checkpoint's:
         a field that cannot change on resume is refused by name (:class:`ConfigError`), a finished run raises
@@ -234,7 +243,7 @@ class Trainer:
         """
         run_dir = Path(run_dir)
         saved = cls.saved_config(run_dir)
-        trainer = cls(config or saved, workers=workers, _resuming=True)
+        trainer = cls(config or saved, workers=workers, agent=agent, _resuming=True)
         config = trainer.config
         lock = RunLock(run_dir)
         try:
@@ -407,6 +416,8 @@ class Trainer:
             obs=Observation.from_env(fixation["obs"], device),
             action=torch.from_numpy(fixation["action"]).to(device),
             reward=torch.from_numpy(fixation["reward"]).to(device),
+            lifted=torch.from_numpy(fixation["lifted"]).to(device),
+            grasp_tip=torch.from_numpy(fixation["grasp_tip"]).to(device),
             object_centres=torch.from_numpy(fixation["object_centres"]).to(device),
         )
 
@@ -581,7 +592,8 @@ class _Recorder:
     def on_end(self, worker: int, result: EpisodeResult) -> None:
         if worker in self.fixation:  # the bandit's grasp reward: the episode's sparse grasp reward only
             frame, action, centres = self.fixation.pop(worker)
-            self.replay.add_fixation(frame, action, float(result.success), centres)
+            self.replay.add_fixation(frame, action, float(result.success), centres, lifted=result.lifted > 0,
+                                     grasp_tip=result.grasp_tip)  # fmt: skip
 
 
 def latest_checkpoint(run_dir: Path) -> Path | None:

@@ -1,0 +1,130 @@
+"""Where a learned fixation's look is lost under the paper's grasp reward: the bandit's own samples, read three ways.
+
+A run of ``cpu-active-learned-4d`` stores, for each episode, the frame the fixation chose from, the point chosen, the
+grasp reward, whether an object was lifted and the tool tip at the grasp's start (and, for probes only, the objects'
+centres). From the run's newest checkpoint and its replay this script reports:
+
+1. where the labels point: for every lift, the xy distance (cm) from the tool tip at the grasp's start to the nearest
+   object centre. Hindsight relabelling can only teach a look as precise as that.
+2. where the run looked: the xy distance from the points it chose to the nearest object, early and late in training.
+3. an upper bound of the bandit's critic on this encoder: a fresh map critic (the preset's size) trained on the frozen
+   ``r`` of the first 80% of the samples, each with 64 relabelled points, with the labels of ``--rewards`` (the
+   paper's grasp reward relabelled, "grasp"; its cone, "tip-proximity"; the simulator's object centres, "proximity",
+   the label a probe may read), and its best point's distance to the nearest object on the last 20%, beside one
+   fixed point (the bin centre) and the run's own points on those samples.
+
+    python scripts/hindsight_labels_probe.py results/table1-cpu/cpu-active-learned-4d__s0
+
+Prints one JSON object (docs/investigations.md, "The fixation bandit's reward").
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Literal
+
+import numpy as np
+import torch
+import tyro
+
+from apr.envs.config import REWARD, SCENE
+from apr.model.agent import Observation, fixation_points, hindsight_grasp_reward, proximity_reward
+from apr.model.heads import PolicyHeads
+from apr.model.sac import bandit_critic_loss
+from apr.reproduce.policies import load_run
+from apr.train.checkpoints import newest_intact, replay_file
+from apr.train.replay import ReplayBuffer, ReplaySpec
+
+Reward = Literal["grasp", "tip-proximity", "proximity"]
+
+
+@dataclass
+class Args:
+    run: Annotated[Path, tyro.conf.Positional]
+    """A run folder of a learned-fixation preset, with its checkpoints."""
+    rewards: tuple[Reward, ...] = ("grasp", "tip-proximity", "proximity")
+    """The labels the upper-bound critic is trained on, one critic each."""
+    updates: int = 3000
+    relabels: int = 64
+    batch: int = 32
+    seed: int = 0
+
+
+def nearest_xy_cm(points: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """(B,) cm from each point's xy (B, 2+) to the nearest of its scene's object centres (B, N, 3), NaN rows
+    skipped."""
+    offsets = points[:, None, :2] - centres[:, :, :2]
+    return 100 * np.nanmin(np.linalg.norm(offsets, axis=-1), axis=1)
+
+
+def main(args: Args) -> dict:
+    torch.manual_seed(args.seed)
+    snapshot = load_run(args.run)
+    agent, config = snapshot.agent, snapshot.config
+    checkpoint, state = newest_intact(args.run, with_replay=True)
+    spec = ReplaySpec(
+        image_shape=(3, 64, 64, config.env.image_channels),
+        viewpoint_shape=(3, 6),
+        gripper_dim=9,
+        grasp_action_dim=config.env.dof,
+        fixation_dim=3,
+        steps_left=config.env.observes_steps_left,
+    )
+    replay = ReplayBuffer(config.replay_capacity, spec)
+    replay.load(replay_file(checkpoint, state))
+    count = min(replay.f_count, replay.fixation_capacity)
+    frames = replay.frames.batch(replay.f_frame[:count])
+    action, reward = replay.f_action[:count], replay.f_reward[:count]
+    lifted, tip, centres = replay.f_lifted[:count], replay.f_tip[:count], replay.f_centres[:count]
+    chosen = fixation_points(torch.from_numpy(action)).numpy()
+
+    report: dict = {"run": str(args.run), "checkpoint": checkpoint.name, "samples": int(count),
+                    "lifts": int(lifted.sum()), "rewarded": int(reward.sum())}  # fmt: skip
+    lift = lifted > 0
+    report["lift_tip_to_object_cm"] = float(np.median(nearest_xy_cm(tip[lift], centres[lift])))
+    looked = nearest_xy_cm(chosen, centres)
+    fifth = max(count // 5, 1)
+    report["looked_first_fifth_cm"] = float(np.median(looked[:fifth]))
+    report["looked_last_fifth_cm"] = float(np.median(looked[-fifth:]))
+    bin_centre = np.broadcast_to(np.array(SCENE.bin_centre), chosen.shape)
+    report["bin_centre_cm"] = float(np.median(nearest_xy_cm(bin_centre, centres)))
+
+    with torch.no_grad():
+        obs = Observation.from_env(frames, agent.device)
+        r = torch.cat([agent._head_input(agent._scene(obs[k : k + 64], agent._first_two(len(obs[k : k + 64])), 0),
+                                         obs[k : k + 64]) for k in range(0, len(obs), 64)])  # fmt: skip
+    train, held = slice(0, count - fifth), slice(count - fifth, count)
+    report["held_out_samples"] = int(fifth)
+    report["held_out_run_looked_cm"] = float(np.median(looked[held]))
+    model = config.model
+    rng = torch.Generator().manual_seed(args.seed)
+    tensors = {name: torch.from_numpy(value) for name, value in
+               {"action": action, "lifted": lifted, "tip": tip, "centres": centres}.items()}  # fmt: skip
+    for kind in args.rewards:
+        heads = PolicyHeads(r.shape[1], 3, tuple(model.head_channels), grid=r.shape[-1], critic="map")
+        optimizer = torch.optim.Adam(heads.critic.parameters(), lr=model.sac_lr)
+        for _ in range(args.updates):
+            index = torch.randint(train.stop, (args.batch,), generator=rng)
+            points = torch.rand((args.batch, args.relabels, 3), generator=rng) * 2 - 1
+            if kind == "proximity":
+                labels = proximity_reward(points, tensors["centres"][index], REWARD.fixation_radius)
+            else:
+                profile = "ball" if kind == "grasp" else "cone"
+                labels = hindsight_grasp_reward(points, tensors["lifted"][index], tensors["tip"][index],
+                                                REWARD.fixation_radius, profile)  # fmt: skip
+            loss, _ = bandit_critic_loss(heads, r[index], points, labels)
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+        with torch.no_grad():
+            best = heads.critic.best_xy(r[held])
+        points = fixation_points(torch.cat([best, torch.zeros(len(best), 1)], dim=1)).numpy()
+        report[f"critic_{kind}_held_out_cm"] = float(np.median(nearest_xy_cm(points, centres[held])))
+    print(json.dumps(report))
+    return report
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))
