@@ -30,6 +30,7 @@ from matplotlib.figure import Figure
 from PIL import Image, ImageDraw, ImageFont
 
 from apr.commands import checks
+from apr.envs.config import VERSIONS
 from apr.foveation import foveate
 from apr.reproduce.episodes import (
     ActionSource,
@@ -262,6 +263,18 @@ def write_gif(path: Path, frames: Sequence[np.ndarray], fps: float = 3.0, colors
 
 
 # -------------------------------------------------------------------------------------------------- drivers
+def _passive_counterpart(env_id: str) -> str:
+    """The passive environment Figure 3 sets beside ``env_id``'s: of the same version, or of the newest version whose
+    task is that version's (an active run on ``-v2`` is shown beside ``-v4``'s cameras framed on the tray: the active
+    task of the two is the same)."""
+    version = env_id.rpartition("-")[2]
+    if is_passive(env_id):  # a passive policy's own cameras
+        return env_id
+    same_task = [name for name, kwargs in VERSIONS.items() if kwargs == VERSIONS.get(version)]
+    return model_env_id(f"{env_id.rpartition('-')[0]}-{max(same_task, key=lambda v: int(v[1:]), default=version)}",
+                        passive=True)  # fmt: skip
+
+
 def fig3_driver(snapshot: PolicySnapshot) -> tuple[EnvConfig, EnvConfig, ActionSource | None, str]:
     """Which environment drives the Figure 3 episode, which one replays its actions, and with what policy.
 
@@ -274,7 +287,7 @@ def fig3_driver(snapshot: PolicySnapshot) -> tuple[EnvConfig, EnvConfig, ActionS
     env = snapshot.config.env  # each variant keeps the run's dof, renderer, render size, reveal_target, reach scale
     active = dataclasses.replace(env, env_id=model_env_id(env.env_id, passive=False), target="env",
                                  foveation="logpolar")  # fmt: skip
-    passive = dataclasses.replace(env, env_id=model_env_id(env.env_id, passive=True), target="env", foveation="resize")
+    passive = dataclasses.replace(env, env_id=_passive_counterpart(env.env_id), target="env", foveation="resize")
     if env.learned_fixation:
         return active, passive, None, SCRIPTED_LABEL
     policy = agent_actions(snapshot.agent)
