@@ -194,3 +194,52 @@ def test_vanilla_runner_smoke(tmp_path: Path, one_thread) -> None:
         ("sb3-sac-benchmark-4d", 1, 2), ("sb3-dqn-benchmark-4d", 1, 2)}  # fmt: skip
     assert (args.out / "vanilla_curves.png").is_file()
     assert run(VanillaArgs(out=args.out, baselines=("scripted-floor",), eval_episodes=2, render_size=64)) == table
+
+
+def test_vanilla_run_resumes_from_its_checkpoint(tmp_path: Path, one_thread, monkeypatch, capsys) -> None:
+    """A SAC run stopped after its checkpoint at 2 grasps resumes there: the model's steps and replay come back, the
+    evaluations after the checkpoint are repeated once, and the finished run drops its checkpoints."""
+    pytest.importorskip("stable_baselines3")
+    from apr.bench import vanilla
+
+    args = vanilla.VanillaArgs(out=tmp_path, baselines=("sb3-sac",), seeds=(0,), eval_at=(1, 3), eval_episodes=1,
+                               render_size=64, checkpoint_every=2, sac=vanilla.SacSettings(learning_starts=4,
+                                                                                          batch_size=4))  # fmt: skip
+    saved = vanilla.save_checkpoint
+    stopped: dict[str, int] = {}
+
+    def save_then_stop(path: Path, model, state: dict) -> None:
+        saved(path, model, state)
+        if state["grasps"] == 2:
+            stopped.update(steps=model.num_timesteps, replay=model.replay_buffer.size())
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(vanilla, "save_checkpoint", save_then_stop)
+    with pytest.raises(KeyboardInterrupt):
+        vanilla.run(args)
+    folder = tmp_path / "sb3-sac-benchmark-4d__s0"
+    assert sorted(path.name for path in (folder / "checkpoints").iterdir()) == ["g00000002"]
+    assert sorted(path.name for path in (folder / "checkpoints" / "g00000002").iterdir()) == sorted(
+        vanilla.CHECKPOINT_FILES)  # fmt: skip
+    (folder / "eval" / "eval_00000003.json").write_text("{}")  # as if written after the checkpoint, then cut off
+
+    loaded: dict[str, int] = {}
+    monkeypatch.setattr(vanilla, "save_checkpoint", saved)
+    import stable_baselines3
+
+    original = stable_baselines3.SAC.load_replay_buffer
+
+    def spy(self, path, *rest, **kwargs) -> None:
+        original(self, path, *rest, **kwargs)
+        loaded.update(steps=self.num_timesteps, replay=self.replay_buffer.size())
+
+    monkeypatch.setattr(stable_baselines3.SAC, "load_replay_buffer", spy)
+    vanilla.run(args)
+    assert loaded == stopped and loaded["steps"] > 0
+    assert "resumed at 2 grasps" in capsys.readouterr().out
+    found = sorted(path.name for path in (folder / "eval").glob("eval_*.json"))
+    assert found == ["eval_00000001.json", "eval_00000003.json"]
+    assert json.loads((folder / "eval" / "eval_00000003.json").read_text())["final"] is True
+    rows = (folder / "metrics.csv").read_text().splitlines()
+    assert [row.split(",")[0] for row in rows] == ["grasps", "1", "3"]
+    assert not (folder / "checkpoints").exists() and (folder / "model.zip").is_file()

@@ -141,6 +141,9 @@ class VanillaArgs:
     learned fixation; at CPU scale on 4-DoF, as the benchmark's task)."""
     rerun: bool = False
     """Train a finished run again (default: a run folder with its final evaluation is kept as it is)."""
+    checkpoint_every: int = 200
+    """Grasps between checkpoints of a trained baseline (its model, replay and counters, ``RUN/checkpoints/``), and
+    at each of ``eval_at``: an interrupted run resumes from its last one. 0: at ``eval_at`` only."""
 
 
 # ----------------------------------------------------------------------------------------------- environments
@@ -292,7 +295,7 @@ def is_finished(path: Path) -> bool:
 
 def _start_run(path: Path, config: dict) -> None:
     """Write ``config.json`` into a fresh run folder (what an earlier unfinished attempt wrote is removed)."""
-    for name in ("eval", "metrics.csv", "model.zip", "config.json"):
+    for name in ("eval", "metrics.csv", "model.zip", "config.json", "checkpoints"):
         target = path / name
         if target.is_dir():
             shutil.rmtree(target)
@@ -300,6 +303,51 @@ def _start_run(path: Path, config: dict) -> None:
             target.unlink()
     (path / "eval").mkdir(parents=True, exist_ok=True)
     (path / "config.json").write_text(json.dumps(config, indent=2) + "\n")
+
+
+CHECKPOINT_FILES = ("model.zip", "replay.pkl", "state.json")
+"""A checkpoint folder ``RUN/checkpoints/gGRASPS`` is whole once ``state.json``, written last, is there."""
+
+
+def last_checkpoint(path: Path, config: dict) -> Path | None:
+    """The newest whole checkpoint of the run at ``path`` if its ``config.json`` is ``config`` (the same run), else
+    None."""
+    try:
+        same = json.loads((path / "config.json").read_text()) == config
+    except (OSError, ValueError):
+        return None
+    whole = sorted(folder for folder in (path / "checkpoints").glob("g*") if (folder / "state.json").exists())
+    return whole[-1] if same and whole else None
+
+
+def save_checkpoint(path: Path, model: Any, state: dict) -> None:
+    """Save the model, its replay and ``state`` (grasps, clocks, the recent outcomes) to
+    ``RUN/checkpoints/gGRASPS``; then remove the older checkpoints."""
+    folder = path / "checkpoints" / f"g{state['grasps']:08d}"
+    if folder.exists():
+        shutil.rmtree(folder)
+    folder.mkdir(parents=True)
+    model.save(folder / "model.zip")
+    model.save_replay_buffer(folder / "replay.pkl")
+    (folder / "state.json").write_text(json.dumps(state, indent=2) + "\n")
+    for older in (path / "checkpoints").glob("g*"):
+        if older.name < folder.name:
+            shutil.rmtree(older)
+
+
+def _forget_after(path: Path, grasps: int) -> None:
+    """Drop the evaluations and metrics rows written after the checkpoint at ``grasps`` (the run repeats them)."""
+    for item in (path / "eval").glob("eval_*.json"):
+        if int(item.stem.split("_")[1]) > grasps:
+            item.unlink()
+    metrics = path / "metrics.csv"
+    if metrics.exists():
+        with open(metrics, newline="") as file:
+            rows = [row for row in csv.DictReader(file) if int(row["grasps"]) <= grasps]
+        with open(metrics, "w", newline="") as file:
+            writer = csv.DictWriter(file, fieldnames=METRICS_COLUMNS)
+            writer.writeheader()
+            writer.writerows(rows)
 
 
 def _write_eval(path: Path, result: dict) -> None:
@@ -372,7 +420,8 @@ def sb3_settings(baseline: str, args: VanillaArgs, total_grasps: int) -> dict[st
 
 def run_trained(baseline: str, args: VanillaArgs, seed: int, env_id: str, kwargs: dict, dof: int) -> Path:
     """Train an SB3 agent for ``max(eval_at)`` grasps, evaluating its deterministic policy at each of ``eval_at``
-    grasps; save the final model (``model.zip``)."""
+    grasps; save the final model (``model.zip``). An unfinished run of the same config resumes from its last
+    checkpoint (:func:`save_checkpoint`)."""
     try:
         import stable_baselines3 as sb3
         import torch
@@ -396,25 +445,38 @@ def run_trained(baseline: str, args: VanillaArgs, seed: int, env_id: str, kwargs
               "algorithm": "SAC" if baseline == "sb3-sac" else "DQN", "policy": "MultiInputPolicy",
               "settings": settings, "threads": args.threads, "stack_views": args.stack_views,
               "wrappers": ["ImageObservation", *(["DiscreteActions"] if discrete else [])]}  # fmt: skip
-    _start_run(path, config)
+    checkpoint = last_checkpoint(path, config)
+    if checkpoint is None:
+        _start_run(path, config)
     torch.set_num_threads(args.threads)
     env = make_env(env_id, kwargs, "train", discrete, args.stack_views)
     workers = OneEnvWorkers(env_id, kwargs)
-    if baseline == "sb3-sac":
-        model = sb3.SAC("MultiInputPolicy", env, seed=seed, verbose=0, device="cpu", **settings)
+    algorithm = sb3.SAC if baseline == "sb3-sac" else sb3.DQN
+    state = {"grasps": 0, "wall_s": 0.0, "eval_s": 0.0, "recent": []}
+    if checkpoint is None:
+        model = algorithm("MultiInputPolicy", env, seed=seed, verbose=0, device="cpu", **settings)
     else:
-        model = sb3.DQN("MultiInputPolicy", env, seed=seed, verbose=0, device="cpu", **settings)
+        state = json.loads((checkpoint / "state.json").read_text())
+        model = algorithm.load(checkpoint / "model.zip", env=env, device="cpu")
+        model.load_replay_buffer(checkpoint / "replay.pkl")
+        # the library saves no random generator: a resumed run is repeatable, not the uninterrupted run's twin
+        model.set_random_seed(seed + state["grasps"])
+        _forget_after(path, state["grasps"])
+        print(f"{path}: resumed at {state['grasps']} grasps ({model.num_timesteps} steps)", flush=True)
     wrapper = env if not discrete else env.env
     table = env.table if discrete else None
     policy = library_policy(model, wrapper, table)
-    started = time.perf_counter()
-    clock = {"eval_s": 0.0}
-    recent: list[tuple[float, float]] = []
+    started = time.perf_counter() - state["wall_s"]
+    clock = {"eval_s": state["eval_s"]}
+    recent: list[tuple[float, float]] = [tuple(item) for item in state["recent"]]
+    every = args.checkpoint_every
+    checkpoint_at = {grasps for grasps in [*eval_at, *(range(every, total_grasps, every) if every else [])]
+                     if grasps < total_grasps}  # fmt: skip
 
     class GraspCounter(BaseCallback):
-        """Counts grasps (finished episodes); evaluates at each of ``eval_at``; stops at the last."""
+        """Counts grasps (finished episodes); evaluates at each of ``eval_at``; checkpoints; stops at the last."""
 
-        grasps = 0
+        grasps = state["grasps"]
 
         def _on_step(self) -> bool:
             for done, info in zip(self.locals["dones"], self.locals["infos"], strict=True):
@@ -425,6 +487,10 @@ def run_trained(baseline: str, args: VanillaArgs, seed: int, env_id: str, kwargs
                 del recent[:-100]
                 if self.grasps in eval_at:
                     evaluate_now(self.grasps, self.num_timesteps, self.model._n_updates)
+                if self.grasps in checkpoint_at:
+                    wall = time.perf_counter() - started
+                    state = {"grasps": self.grasps, "eval_s": clock["eval_s"], "wall_s": wall, "recent": recent}
+                    save_checkpoint(path, self.model, state)
             return self.grasps < total_grasps
 
     def evaluate_now(grasps: int, env_steps: int, updates: int) -> None:
@@ -447,8 +513,11 @@ def run_trained(baseline: str, args: VanillaArgs, seed: int, env_id: str, kwargs
               f"{result['attempts']} attempts)", flush=True)  # fmt: skip
 
     try:
-        model.learn(total_timesteps=total_grasps * STEPS_PER_GRASP_MAX, callback=GraspCounter())
+        # the step bound counts from the run's start, so a resumed DQN's exploration schedule is the uninterrupted one's
+        steps_left = total_grasps * STEPS_PER_GRASP_MAX - model.num_timesteps
+        model.learn(total_timesteps=steps_left, callback=GraspCounter(), reset_num_timesteps=checkpoint is None)
         model.save(path / "model.zip")
+        shutil.rmtree(path / "checkpoints", ignore_errors=True)
     finally:
         env.close()
         workers.close()
@@ -463,6 +532,7 @@ def run(args: VanillaArgs) -> Path:
         checks.output_folder("--out", args.out),
         checks.at_least("--eval-episodes", args.eval_episodes, 1),
         checks.at_least("--threads", args.threads, 1),
+        checks.at_least("--checkpoint-every", args.checkpoint_every, 0),
         None if args.eval_at and min(args.eval_at) >= 1 else "--eval-at needs grasp counts of at least 1",
         None if args.seeds else "--seeds needs at least one seed",
         *(None if path.exists() else f"--compare {path} does not exist" for path in args.compare),
