@@ -116,3 +116,19 @@ def test_convdraw_sums_the_kl_of_posterior_from_prior_over_steps_latents_and_pos
     r, images = torch.randn(2, 4, 2, 2), torch.rand(2, 3, 8, 8)  # the generator computes in fp32
     _, kl = generator(r, torch.randn(2, 2), images, torch.randn(generator.noise_shape(2, 2)))
     torch.testing.assert_close(kl, torch.full((2,), expected), rtol=1e-5, atol=0)
+
+
+def test_a_channel_weight_scales_that_channels_nll_alone():
+    """``gqn_mask_weight``'s path: image 1 of the first test as a 2-channel 1x2 image, channel 0 (0, 1) and channel 1
+    (0.5, 0.5), mean 0.5, sigma 0.5. Unweighted: channel 0 costs 2 * 0.22579135 + 1.0, channel 1 2 * 0.22579135, the
+    nll 1.90316541. Channel 1 weighted 3: 1.45158271 + 3 * 0.45158271 = 2.80633083, plus the KL of 1.0."""
+    image = torch.tensor([[[[0.0, 1.0]], [[0.5, 0.5]]]], dtype=torch.float64)
+    stub = StubGenerator(torch.full_like(image, 0.5), torch.tensor([1.0], dtype=torch.float64))
+    args = (stub, torch.zeros(1, 1, 1, 1), torch.zeros(1, 1), image, 0.5, torch.zeros(1))
+    per_pixel = math.log(0.5) + HALF_LOG_TWO_PI
+    plain, _ = gqn_elbo_loss(*args)
+    assert plain.item() == pytest.approx(4 * per_pixel + 1.0 + 1.0, abs=1e-12)
+    weighted, metrics = gqn_elbo_loss(*args, channel_weights=torch.tensor([1.0, 3.0], dtype=torch.float64))
+    assert weighted.item() == pytest.approx((2 * per_pixel + 1.0) + 3 * 2 * per_pixel + 1.0, abs=1e-12)
+    assert weighted.item() == pytest.approx(3.8063308, abs=1e-6)
+    assert metrics["gqn/mse"].item() == pytest.approx(0.5 / 4, abs=1e-12)  # the error itself is unweighted

@@ -124,15 +124,16 @@ def _body_and_link_ids(world: GraspWorld, camera) -> tuple[np.ndarray, np.ndarra
     return bodies, links
 
 
-@pytest.mark.parametrize("tray", [True, False])
-def test_passive_cameras_see_the_gripper_and_the_tray(make_env, tray: bool) -> None:
-    """v0-v3's wide cameras see the gripper from the start; v4's, framed on the tray, once it has come down toward it
-    (as the benchmark's camera does)."""
+@pytest.mark.parametrize("layout", ["front", "sides", "wide"])
+def test_passive_cameras_see_the_gripper_and_the_tray(make_env, layout: str) -> None:
+    """v0-v3's wide cameras see the gripper from the start; v4's (and the front option's), framed on the tray, once it
+    has come down toward it (as the benchmark's camera does)."""
+    tray = layout != "wide"
     env = make_env(PASSIVE, dof=4)
     env.reset(seed=0)
     world = env.unwrapped.world
     gripper_links = (7, 8, 9, 10, 11, 12, 13)
-    cameras = passive_cameras(tray=tray)
+    cameras = passive_cameras(layout)
     assert len(cameras) == 3
     for moment in ("reset", "after descending")[tray:]:
         if moment != "reset":
@@ -162,12 +163,14 @@ def _image_coordinates(camera, point: np.ndarray) -> np.ndarray:
 
 
 def test_the_passive_cameras_are_framed_on_the_tray_as_the_benchmarks_camera_is() -> None:
-    """v4: the tray's floor fills each image (its corners inside, each within the outer 20% of the half-width on
-    at least one axis) and an object 5 cm across at the middle of the drop area spans at least 6 of the 64 pixels;
-    v0-v3's wider framing gave it under 4."""
+    """v4 (and the front option): the tray's floor fills each image (its corners inside, each within the outer 20% of
+    the half-width on at least one axis) and an object 5 cm across at the middle of the drop area spans at least 6 of
+    the 64 pixels (5 in the front option's two cameras 20 deg aside, which stand further back to keep the floor's
+    corners in view); v0-v3's wider framing gave it under 4."""
     drop_middle = np.array([0.55, 0.0, -0.17])
-    for tray, least_pixels in ((True, 6.0), (False, 0.0)):
-        for camera in passive_cameras(tray=tray):
+    for layout, spans in (("front", (5.0, 5.0, 6.0)), ("sides", (6.0, 6.0, 6.0)), ("wide", (0.0, 0.0, 0.0))):
+        tray = layout != "wide"
+        for camera, least_pixels in zip(passive_cameras(layout), spans, strict=True):
             corners = np.array([_image_coordinates(camera, corner) for corner in TRAY_FLOOR_CORNERS])
             assert np.abs(corners).max() < 1.0, (tray, corners)  # every corner inside the image
             if tray:
@@ -178,11 +181,13 @@ def test_the_passive_cameras_are_framed_on_the_tray_as_the_benchmarks_camera_is(
             assert span >= least_pixels if tray else span < 4.0, (tray, span)
 
 
+@pytest.mark.parametrize("cameras", ["sides", "front"])
 @pytest.mark.parametrize("split", ["train", "test"])
-def test_the_passive_target_is_in_every_view(make_env, split: str) -> None:
-    """In v4 every static camera sees the target: its mask covers at least 30 of the 64x64 pixels in each view at
-    reset, over several scenes (measured: 42 at least, 105 in the median)."""
-    env = make_env("apr/PassiveGrasp-v4", dof=4, split=split, render_size=128)
+def test_the_passive_target_is_in_every_view(make_env, split: str, cameras: str) -> None:
+    """Framed on the tray (v4's cameras, and the front option), every static camera sees the target: its mask covers
+    at least 30 of the 64x64 pixels in each view at reset, over several scenes (measured in v4: 42 at least, 105 in
+    the median)."""
+    env = make_env("apr/PassiveGrasp-v4", dof=4, split=split, render_size=128, cameras=cameras)
     for seed in range(4):
         observation, _ = env.reset(seed=seed)
         pixels = (observation["images"][..., 3] > 127).sum(axis=(1, 2))
@@ -205,7 +210,7 @@ def test_egl_one_world_per_process() -> None:
         try:
             assert second.renderer == "tiny"
             # Both renderers see the same scene the same way up (the EGL image is not flipped or mirrored).
-            camera = passive_cameras(tray=False)[0]
+            camera = passive_cameras("wide")[0]
             _, egl_bodies = first.render(camera, segmentation=True)
             _, tiny_bodies = second.render(camera, segmentation=True)
             assert (egl_bodies == first.arm.uid).sum() > 100

@@ -216,6 +216,27 @@ def test_without_representation_the_critics_train_the_encoder(proprioception: bo
     assert any(not torch.equal(b, p) for b, p in zip(before, agent.encoder.parameters(), strict=True))
 
 
+def test_with_critic_trains_encoder_the_critics_and_the_elbo_both_train_the_encoder() -> None:
+    """The departure ``critic_trains_encoder``: beside the ELBO, the critic losses reach the encoder (the actors still
+    do not); on an update without the ELBO the encoder still moves, the generator not."""
+    agent = APRAgent(ModelConfig.tiny(critic_trains_encoder=True, gqn_update_every=2))
+    losses, _ = agent.compute_losses(*random_batches(agent.config), step=0)
+    for name in ("grasp/critic", "fixation/critic", "gqn/elbo"):
+        _backward(agent, losses[name])
+        grads = _grads(agent.encoder)
+        assert all(g is not None for g in grads) and sum(g.abs().sum() for g in grads) > 0, name
+    for name in ("grasp/actor", "fixation/actor"):
+        _backward(agent, losses[name])
+        assert all(g is None for g in _grads(agent.encoder)), name
+
+    snapshot = {name: p.detach().clone() for name, p in agent.networks.named_parameters()}
+    metrics = agent.update(*random_batches(agent.config), step=1)  # no ELBO on odd updates
+    changed = {name for name, p in agent.networks.named_parameters() if not torch.equal(snapshot[name], p)}
+    assert "gqn/elbo_loss" not in metrics
+    assert any(name.startswith("encoder.") for name in changed)
+    assert not any(name.startswith("generator.") for name in changed)
+
+
 def test_update_trains_every_part_and_moves_the_targets_slowly() -> None:
     agent = APRAgent(ModelConfig.tiny())
     snapshot = {name: p.detach().clone() for name, p in agent.networks.named_parameters()}

@@ -213,6 +213,20 @@ def test_fixed_initial_views_reach_the_active_env_and_the_passive_one_refuses_th
     assert passive.problems() == ["--env.initial-views fixed needs the head: the passive model's cameras are static"]
 
 
+def test_the_passive_cameras_option_reaches_the_passive_env_and_the_active_one_refuses_it(make_env):
+    passive = preset("cpu-passive-target")
+    assert "cameras" not in passive.env.make_kwargs("train")  # "": the version's own (v4: "sides")
+    passive.env.cameras = "front"
+    kwargs = passive.env.make_kwargs("train")
+    assert kwargs["cameras"] == "front" and passive.problems() == []
+    env = make_env(passive.env.env_id, **{**kwargs, "render_size": 64})
+    assert env.unwrapped.camera_layout == "front"
+    active = preset("cpu-active-target")
+    active.env.cameras = "front"
+    assert "cameras" not in active.env.make_kwargs("train")
+    assert active.problems() == ["--env.cameras front needs the passive model: apr/ActiveGrasp-v4 has the head"]
+
+
 def test_a_learned_fixation_looks_with_fixed_views_and_a_map_critic_at_cpu_scale_only():
     for name in ("active-learned-4d", "active-learned-6d"):
         paper, cpu = preset(name), preset(f"cpu-{name}")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Literal
 
 Vec3 = tuple[float, float, float]
 
@@ -168,12 +169,20 @@ class CameraSpec:
     """How far above the horizontal the passive cameras look down from v4 on (benchmark: its camera's pitch, -56
     deg)."""
     tray_azimuths_deg: tuple[float, float, float] = (0.0, 90.0, -90.0)
-    """ours: the passive cameras' directions from ``tray_aim`` from v4 on, about the vertical from +x: the front
-    (facing the Kuka), the left and the right of the tray."""
+    """ours: v4's passive cameras' directions from ``tray_aim``, about the vertical from +x: the front (facing the
+    Kuka), the left and the right of the tray."""
     tray_distances: tuple[float, float, float] = (1.43, 1.38, 1.38)
-    """m from ``tray_aim`` to each passive camera from v4 on (ours): the nearest at which the four corners of the
+    """m from ``tray_aim`` to each of v4's passive cameras (ours): the nearest at which the four corners of the
     tray's floor (x 0.43-0.85, y -0.16-0.28 m) lie within the middle 95% of the image, so that the tray fills it,
     as the benchmark's camera frames it (docs/decisions.md, "The passive cameras")."""
+    front_azimuths_deg: tuple[float, float, float] = (-20.0, 20.0, 0.0)
+    """ours: the directions of the passive cameras of ``cameras="front"`` (an option, no version's), all from the
+    front: those of the head's fixed views at reset (``HeadSpec.fixed_initial_views``, yaw -0.35, 0.35 and 0 rad), so
+    that the GQN predicts one view from two that differ by a small turn, not a quarter turn. Measured: its GQN keeps
+    the target no better than v4's (docs/investigations.md, "The passive cameras framed on the tray")."""
+    front_distances: tuple[float, float, float] = (1.74, 1.74, 1.44)
+    """m from ``tray_aim`` to each camera of ``cameras="front"``: the nearest that frame the tray's floor as
+    ``tray_distances`` do."""
     passive_fov_deg: float = 50.0
     """v0-v3's passive cameras (ours): field of view."""
     passive_target: Vec3 = (0.62, 0.05, -0.05)
@@ -218,6 +227,9 @@ VERSIONS: dict[str, dict[str, bool]] = {
 }
 """Each version's task, as keyword arguments of the environments (docs/environments.md, "Versions"): v1 puts the
 15-step limit in the task, v2 lets a tilted gripper reach the grasp height, v3 turns it about its tool tip (measured,
-not carried on), v4 frames the passive cameras on the tray (:data:`PASSIVE_TRAY_CAMERAS`)."""
-PASSIVE_TRAY_CAMERAS: dict[str, bool] = {"v0": False, "v1": False, "v2": False, "v3": False, "v4": True}
-"""Whether the passive model's cameras are framed on the tray, by version."""
+not carried on), v4 frames the passive cameras on the tray (:data:`PASSIVE_CAMERAS`)."""
+PassiveCameras = Literal["wide", "sides", "front"]
+PASSIVE_CAMERAS: dict[str, PassiveCameras] = {"v0": "wide", "v1": "wide", "v2": "wide", "v3": "wide", "v4": "sides"}
+"""The passive model's cameras by version (:func:`apr.envs.world.passive_cameras`): "wide" (v0-v3: 50 deg, the tray a
+third of each image), "sides" (v4: framed on the tray from its front, left and right). "front" (framed on the tray,
+all three from its front, 20 deg apart) is an option of the environment (``cameras="front"``), no version's."""

@@ -12,7 +12,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from apr.envs.config import CAMERA, GRASP, HEAD, PHYSICS, REWARD
+from apr.envs.config import CAMERA, GRASP, HEAD, PHYSICS, REWARD, PassiveCameras
 from apr.envs.task import GraspTask
 from apr.envs.world import GraspWorld, passive_cameras
 from apr.foveation import FOVEATIONS, foveate
@@ -376,10 +376,12 @@ class PassiveGraspEnv(GraspEnv):
     ``gymnasium.make("apr/PassiveGrasp-v4", dof=6, split="train", renderer="tiny")``, as for the active env
     (``reveal_target`` too), and
 
-    - ``tray_cameras``: the cameras are framed on the tray as the benchmark's camera is (default; ``-v4``): a field
-      of view of 20 deg, 1.4 m from the middle of the tray's floor, whose corners lie inside each image; an object
-      5 cm across spans about 6 pixels of the 64. ``False`` is ``-v0`` to ``-v3``: a field of view of 50 deg from
-      about 1 m, the tray a third of each image and an object a few pixels.
+    - ``cameras``: ``"sides"`` (default; ``-v4``): framed on the tray as the benchmark's camera is, a field of view
+      of 20 deg, 1.4 m from the middle of the tray's floor, whose corners lie inside each image; an object 5 cm
+      across spans about 6 pixels of the 64; from the tray's front, left and right. ``"front"`` (an option): so
+      framed, all three from the tray's front, 20 deg apart, as the head's views at reset are. ``"wide"``
+      (``-v0`` to ``-v3``): a field of view of 50 deg from about 1 m, the tray a third of each image and an object
+      a few pixels.
 
     ## Action Space
     ``Box(-1, 1, (dof,), float32)``, as for ``apr/ActiveGrasp-v2`` with ``target="env"``.
@@ -400,16 +402,16 @@ class PassiveGraspEnv(GraspEnv):
                  render_mode: str | None = None, reach_scale: float = REWARD.reach_scale,
                  render_size: int = CAMERA.render_size, reveal_target: bool = False,
                  limit_in_task: bool = True, tilted_reach: bool = True, tilt_about_tip: bool = False,
-                 tray_cameras: bool = True):  # fmt: skip
+                 cameras: PassiveCameras = "sides"):  # fmt: skip
         super().__init__(dof=dof, target="env", foveation="resize", split=split, renderer=renderer,
                          render_mode=render_mode, with_head=False, reach_scale=reach_scale,
                          render_size=render_size, reveal_target=reveal_target,
                          limit_in_task=limit_in_task, tilted_reach=tilted_reach,
                          tilt_about_tip=tilt_about_tip)  # fmt: skip
-        self.tray_cameras = bool(tray_cameras)
-        """The cameras are framed on the tray (v4): its floor fills each image, as the benchmark's camera frames it.
-        False (v0-v3): the tray covers about a third of each image."""
-        self.cameras = passive_cameras(tray=self.tray_cameras)
+        _check_choice("cameras", cameras, ("wide", "sides", "front"))
+        self.camera_layout = cameras
+        """The cameras' layout (:data:`apr.envs.config.PASSIVE_CAMERAS`, by version)."""
+        self.cameras = passive_cameras(cameras)
         self._viewpoints = np.stack([np.concatenate([cam.eye, cam.forward]) for cam in self.cameras])
 
     def _render_views(self):

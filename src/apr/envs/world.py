@@ -16,7 +16,7 @@ import pybullet as p
 import pybullet_data
 from pybullet_utils.bullet_client import BulletClient
 
-from apr.envs.config import CAMERA, OBJECTS, PHYSICS, SCENE
+from apr.envs.config import CAMERA, OBJECTS, PHYSICS, SCENE, PassiveCameras
 from apr.envs.head import Head
 from apr.envs.objects import object_urdf
 from apr.envs.rendering import Camera, claim_renderer, load_egl, release, render
@@ -244,19 +244,26 @@ class GraspWorld:
         return render(self.client, camera, self.render_size, self.renderer, CAMERA.near, CAMERA.far, segmentation)
 
 
-def passive_cameras(tray: bool = True) -> list[Camera]:
+def passive_cameras(layout: PassiveCameras = "sides") -> list[Camera]:
     """The passive model's three static cameras: they see the tray and the gripper, with no attention.
 
     Args:
-        tray: framed on the tray as the benchmark's camera is (v4 on: a field of view of 20 deg, the tray's floor
-            filling the image); False: the wider framing of v0-v3 (50 deg, the tray a third of the image).
+        layout: "sides" (v4): framed on the tray as the benchmark's camera is (a field of view of 20 deg, the tray's
+            floor filling the image) from its front, left and right; "front": so framed, all three from its front,
+            20 deg apart; "wide" (v0-v3): 50 deg, the tray a third of the image.
     """
-    if not tray:
+    if layout == "wide":
         return [_camera_at(np.array(eye), np.array(CAMERA.passive_target), CAMERA.passive_fov_deg)
                 for eye in CAMERA.passive_eyes]  # fmt: skip
+    if layout == "sides":
+        placements = zip(CAMERA.tray_azimuths_deg, CAMERA.tray_distances, strict=True)
+    elif layout == "front":
+        placements = zip(CAMERA.front_azimuths_deg, CAMERA.front_distances, strict=True)
+    else:
+        raise ValueError(f"layout must be one of ('wide', 'sides', 'front'), got {layout!r}")
     aim, elevation = np.array(CAMERA.tray_aim), math.radians(CAMERA.tray_elevation_deg)
     cameras = []
-    for azimuth, distance in zip(CAMERA.tray_azimuths_deg, CAMERA.tray_distances, strict=True):
+    for azimuth, distance in placements:
         azimuth = math.radians(azimuth)
         away = np.array([math.cos(elevation) * math.cos(azimuth), math.cos(elevation) * math.sin(azimuth),
                          math.sin(elevation)])  # fmt: skip

@@ -4,7 +4,8 @@ One update (``APRAgent.update``):
   1. per sample, two of the step's three views are the context (r = r1 + r2), the third is the query;
   2. the ELBO of the generator on the query view trains the encoder and generator (paper, Method C);
   3. the grasp SAC losses and the fixation bandit SAC losses see r detached (stop-gradient), unless the
-     "w/o representation" ablation (``representation=False``) lets the critic losses train the encoder;
+     "w/o representation" ablation (``representation=False``) or ``critic_trains_encoder`` lets the critic losses
+     train the encoder;
   4. all losses are computed from the same parameters, summed, back-propagated once; every optimiser
      steps (the parameter sets are disjoint) and the grasp target critics are Polyak-averaged.
 """
@@ -429,9 +430,11 @@ class APRAgent:
         elbo_now = config.representation and step % config.gqn_update_every == 0
         n_grasp_gqn = min(config.gqn_batch_size, batch) if elbo_now else 0
         n_fix_gqn = min(config.gqn_fixation_batch_size, fix_batch) if elbo_now else 0
-        # Ablation: every r gets its gradient (the critics train the encoder); else only the ELBO's samples.
-        grasp_grad = n_grasp_gqn if config.representation else batch
-        fix_grad = n_fix_gqn if config.representation else fix_batch
+        # The critics train the encoder (the ablation, or critic_trains_encoder): every r gets its gradient; else only
+        # the ELBO's samples.
+        critic_grad = not config.representation or config.critic_trains_encoder
+        grasp_grad = batch if critic_grad else n_grasp_gqn
+        fix_grad = fix_batch if critic_grad else n_fix_gqn
 
         with self._autocast():
             context, query = self._split_context_query(batch)
@@ -454,8 +457,8 @@ class APRAgent:
                 losses["gqn/elbo"], gqn_metrics = self._elbo(r_gqn, query_images[:, 0], query_poses[:, 0], step)
                 metrics.update(gqn_metrics)
 
-            # Stop-gradient: the RL losses see r detached, except the ablation's critics.
-            r_critic = self._head_input(r.detach() if config.representation else r, grasp_batch.obs)
+            # Stop-gradient: the RL losses see r detached, except the critics that train the encoder.
+            r_critic = self._head_input(r if critic_grad else r.detach(), grasp_batch.obs)
             r_actor = self._head_input(r.detach(), grasp_batch.obs)
             losses["grasp/critic"], m = sac_critic_loss(
                 self.grasp,
@@ -476,7 +479,7 @@ class APRAgent:
 
             if fixation_batch is not None:
                 fix_obs = fixation_batch.obs
-                r_fix_critic = self._head_input(r_fix.detach() if config.representation else r_fix, fix_obs)
+                r_fix_critic = self._head_input(r_fix if critic_grad else r_fix.detach(), fix_obs)
                 actions, rewards = self._bandit_targets(fixation_batch)  # (B, K, 3), (B, K)
                 losses["fixation/critic"], m = bandit_critic_loss(
                     self.fixation, r_fix_critic, actions.float(), rewards.float()
@@ -497,7 +500,11 @@ class APRAgent:
         pixel sigma of update ``step``."""
         assert self._generator is not None
         noise = torch.randn(self.generator.noise_shape(len(r), r.shape[-1]), generator=self.rng, device=self.device)
-        return gqn_elbo_loss(self._generator, r, query_poses, query_images, pixel_sigma(step, self.config), noise)
+        weights = None
+        if self.config.image_channels == 4 and self.config.gqn_mask_weight != 1.0:
+            weights = torch.tensor([1.0, 1.0, 1.0, self.config.gqn_mask_weight], device=self.device)
+        return gqn_elbo_loss(self._generator, r, query_poses, query_images, pixel_sigma(step, self.config), noise,
+                             weights)  # fmt: skip
 
     def _bandit_targets(self, batch: FixationBatch) -> tuple[torch.Tensor, torch.Tensor]:
         """The fixation critic's (action, reward) pairs per sample: (B, K, 3) and (B, K): the chosen action, then

@@ -67,6 +67,9 @@ class ModelConfig:
     gqn_anneal_updates: int = 200_000
     """Updates over which sigma and the GQN learning rate anneal linearly (paper/Eslami: 2e5 for sigma;
     one length for both here so a shorter run scales them together; set it to the run's length)."""
+    gqn_mask_weight: float = 1.0
+    """Weight of the target mask's channel (the 4th, with the environment's target) in the ELBO's reconstruction
+    term. 1 (paper): every channel alike, "the generator is trained to also reconstruct the mask" (4A)."""
     gqn_init: str = ""
     """The encoder's and generator's starting weights. "" (paper): fresh ones. Else (ours) GQN weights trained on the
     benchmark's scenes before any grasp, by packaged name (``apr/model/pretrained/NAME.pt``) or path; a new run loads
@@ -146,6 +149,9 @@ class ModelConfig:
     representation: bool = True
     """True: the encoder learns from the ELBO only (RL sees r detached). False: the "w/o representation"
     ablation: no generator; the critic losses train the encoder (paper, section 4C)."""
+    critic_trains_encoder: bool = False
+    """With the representation: the critic losses also train the encoder, beside the ELBO (ours, a departure: the
+    paper's encoder "does not accumulate gradients from the reinforcement learning losses", Method C)."""
 
     # --- run, precision and speed (ours) ---
     seed: int = 0

@@ -138,6 +138,7 @@ def gqn_elbo_loss(
     query_image: torch.Tensor,
     sigma: float,
     noise: torch.Tensor,
+    channel_weights: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """Negative ELBO of GQN (Eslami et al. 2018), in nats per image, averaged over the batch.
 
@@ -146,6 +147,7 @@ def gqn_elbo_loss(
         r: (B, R, 16, 16), computed WITH gradient: this loss is what trains the encoder.
         query_pose: (B, P); query_image: (B, C, 64, 64) in [0, 1]; noise: (L, B, Z, 16, 16).
         sigma: pixel standard deviation of the Gaussian likelihood (annealed by the caller).
+        channel_weights: (C,) weights of each channel's negative log-likelihood; None: all 1 (the ELBO itself).
 
     Returns:
         the loss (scalar) and its metrics (detached scalars): gqn/elbo_loss, gqn/nll, gqn/kl, gqn/mse.
@@ -154,6 +156,8 @@ def gqn_elbo_loss(
     target = query_image.float()
     squared_error = (target - mean) ** 2
     nll_per_pixel = squared_error / (2 * sigma**2) + math.log(sigma) + 0.5 * math.log(2 * math.pi)
+    if channel_weights is not None:
+        nll_per_pixel = nll_per_pixel * channel_weights.view(1, -1, 1, 1)
     nll = nll_per_pixel.flatten(1).sum(dim=1)  # (B,)
     loss = (nll + kl).mean()
     metrics = {

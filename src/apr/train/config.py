@@ -109,6 +109,11 @@ class EnvConfig:
     episode (``HEAD.fixed_initial_views``), so that where an object lies in the first images says where it lies on
     the tray (docs/investigations.md, "What the representation knows")."""
 
+    cameras: Literal["", "wide", "sides", "front"] = ""
+    """The passive cameras' layout (passive env only): "" the version's (``apr.PASSIVE_CAMERAS``: v4's "sides", framed
+    on the tray from its front, left and right); "front" (ours, an option): so framed, all three from the front, 20
+    deg apart; "wide": v0-v3's."""
+
     def make_kwargs(self, split: str) -> dict[str, Any]:
         """Keyword arguments of ``gymnasium.make(self.env_id, ...)`` for ``split``."""
         kwargs: dict[str, Any] = {"dof": self.dof, "split": split, "renderer": self.renderer,
@@ -118,6 +123,8 @@ class EnvConfig:
             kwargs.update(target=self.target, foveation=self.foveation)
             if self.initial_views != "drawn":  # v0 and saved runs never had it
                 kwargs["initial_views"] = self.initial_views
+        elif self.cameras:
+            kwargs["cameras"] = self.cameras
         return kwargs
 
     @property
@@ -234,6 +241,8 @@ class TrainConfig:
                             f"--env.env-id {ACTIVE_ENV_ID} for learned fixation")  # fmt: skip
         if self.env.initial_views_problem:
             problems.append(f"--env.initial-views {self.env.initial_views_problem}")
+        if self.env.cameras and not is_passive(self.env.env_id):
+            problems.append(f"--env.cameras {self.env.cameras} needs the passive model: {self.env.env_id} has the head")
         if self.env.reveal_target and self.env.target == "learned":
             problems.append("--env.reveal-target needs --env.target env: a learned fixation has no target to reveal")
         if self.model.heads_see_fixation and not self.env.observes_fixation:
