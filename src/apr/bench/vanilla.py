@@ -33,6 +33,7 @@ from typing import Any, Literal
 
 import gymnasium as gym
 import numpy as np
+from tqdm import tqdm
 
 from apr.envs.benchmark import BENCHMARK_ENV_ID, register_benchmark_envs
 from apr.envs.config import GRASP
@@ -485,6 +486,9 @@ def run_trained(baseline: str, args: VanillaArgs, seed: int, env_id: str, kwargs
                 self.grasps += 1
                 recent.append((float(info.get("grasp_success", False)), float(info.get("grasp_attempted", False))))
                 del recent[:-100]
+                bar.update()
+                bar.set_postfix(success=f"{np.mean([won for won, _ in recent]):.0%}", updates=self.model._n_updates,
+                                refresh=False)  # fmt: skip
                 if self.grasps in eval_at:
                     evaluate_now(self.grasps, self.num_timesteps, self.model._n_updates)
                 if self.grasps in checkpoint_at:
@@ -508,10 +512,11 @@ def run_trained(baseline: str, args: VanillaArgs, seed: int, env_id: str, kwargs
                                "eval_ci_low": result["ci_low"], "eval_ci_high": result["ci_high"],
                                "attempt_rate": window[:, 1].mean(), "train_s": round(train_s, 2),
                                "eval_s": round(clock["eval_s"], 2)})  # fmt: skip
-        print(f"{path.name}: {grasps} grasps, {env_steps} steps, {updates} updates, {train_s / 60:.1f} train min: "
-              f"{result['success_rate']:.1%} held-out ({result['successes']}/{result['episodes']}, "
-              f"{result['attempts']} attempts)", flush=True)  # fmt: skip
+        tqdm.write(f"{path.name}: {grasps} grasps, {env_steps} steps, {updates} updates, {train_s / 60:.1f} train "
+                   f"min: {result['success_rate']:.1%} held-out ({result['successes']}/{result['episodes']}, "
+                   f"{result['attempts']} attempts)")  # fmt: skip
 
+    bar = tqdm(total=total_grasps, initial=state["grasps"], desc=preset, unit="grasp", dynamic_ncols=True)
     try:
         # the step bound counts from the run's start, so a resumed DQN's exploration schedule is the uninterrupted one's
         steps_left = total_grasps * STEPS_PER_GRASP_MAX - model.num_timesteps
@@ -519,6 +524,7 @@ def run_trained(baseline: str, args: VanillaArgs, seed: int, env_id: str, kwargs
         model.save(path / "model.zip")
         shutil.rmtree(path / "checkpoints", ignore_errors=True)
     finally:
+        bar.close()
         env.close()
         workers.close()
     return path
