@@ -197,19 +197,24 @@ def test_rl_losses_leave_the_encoder_alone_and_the_elbo_leaves_the_heads_alone(p
     assert agent.grasp.log_alpha.grad is not None and all(g is None for g in _grads(agent.grasp.actor))
 
 
-@pytest.mark.parametrize("proprioception", [False, True])
-def test_without_representation_the_critics_train_the_encoder(proprioception: bool) -> None:
-    agent = APRAgent(ModelConfig.tiny(representation=False, heads_see_proprioception=proprioception))
-    assert agent.generator is None and "gqn" not in agent.optimizers
-    losses, _ = agent.compute_losses(*random_batches(agent.config), step=0)
-    assert "gqn/elbo" not in losses
-    for name in ("grasp/critic", "fixation/critic"):
+def _assert_encoder_trained_by(agent: APRAgent, losses: dict[str, torch.Tensor], names: tuple[str, ...]) -> None:
+    """Each loss of ``names`` reaches every encoder parameter; the actors' losses reach none."""
+    for name in names:
         _backward(agent, losses[name])
         grads = _grads(agent.encoder)
         assert all(g is not None for g in grads) and sum(g.abs().sum() for g in grads) > 0, name
     for name in ("grasp/actor", "fixation/actor"):
         _backward(agent, losses[name])
         assert all(g is None for g in _grads(agent.encoder)), name
+
+
+@pytest.mark.parametrize("proprioception", [False, True])
+def test_without_representation_the_critics_train_the_encoder(proprioception: bool) -> None:
+    agent = APRAgent(ModelConfig.tiny(representation=False, heads_see_proprioception=proprioception))
+    assert agent.generator is None and "gqn" not in agent.optimizers
+    losses, _ = agent.compute_losses(*random_batches(agent.config), step=0)
+    assert "gqn/elbo" not in losses
+    _assert_encoder_trained_by(agent, losses, ("grasp/critic", "fixation/critic"))
 
     before = [p.detach().clone() for p in agent.encoder.parameters()]
     agent.update(*random_batches(agent.config), step=0)
@@ -221,13 +226,7 @@ def test_with_critic_trains_encoder_the_critics_and_the_elbo_both_train_the_enco
     do not); on an update without the ELBO the encoder still moves, the generator not."""
     agent = APRAgent(ModelConfig.tiny(critic_trains_encoder=True, gqn_update_every=2))
     losses, _ = agent.compute_losses(*random_batches(agent.config), step=0)
-    for name in ("grasp/critic", "fixation/critic", "gqn/elbo"):
-        _backward(agent, losses[name])
-        grads = _grads(agent.encoder)
-        assert all(g is not None for g in grads) and sum(g.abs().sum() for g in grads) > 0, name
-    for name in ("grasp/actor", "fixation/actor"):
-        _backward(agent, losses[name])
-        assert all(g is None for g in _grads(agent.encoder)), name
+    _assert_encoder_trained_by(agent, losses, ("grasp/critic", "fixation/critic", "gqn/elbo"))
 
     snapshot = {name: p.detach().clone() for name, p in agent.networks.named_parameters()}
     metrics = agent.update(*random_batches(agent.config), step=1)  # no ELBO on odd updates
