@@ -29,7 +29,7 @@ import tyro
 
 from apr.envs.config import PASSIVE_CAMERAS
 from apr.model.agent import APRAgent, Observation
-from apr.reproduce.probe import HELDOUT_OFFSET, PROBE_SEED, Scenes, cached_scenes, encode, error_cm, fit_linear
+from apr.reproduce.probe import HELDOUT_OFFSET, PROBE_SEED, Scenes, cached_scenes, probe_entries
 from apr.train.config import preset
 
 
@@ -60,18 +60,8 @@ def mask_contrast(agent: APRAgent, scenes: Scenes) -> float:
     averaged over the scenes."""
     predicted = agent.predict_view(scenes.observation(), query_view=2)[..., 3]
     truth = scenes.images[:, 2, ..., 3] > 127
-    inside = [frame[mask].mean() for frame, mask in zip(predicted, truth, strict=True) if mask.any()]
-    outside = [frame[~mask].mean() for frame, mask in zip(predicted, truth, strict=True) if mask.any()]
-    return float(np.mean(inside) - np.mean(outside))
-
-
-def target_error_cm(agent: APRAgent, train: Scenes, heldout: Scenes) -> tuple[float, float]:
-    """Ridge readout of the target's xy from r: held-out median error and the constant's (cm)."""
-    label = "target_xy"
-    y_train, y_heldout = torch.from_numpy(train.labels[label]), torch.from_numpy(heldout.labels[label])
-    predicted = fit_linear(encode(agent, train), y_train, encode(agent, heldout))
-    constant = y_train.mean(0).expand_as(y_heldout)
-    return error_cm(label, predicted, y_heldout, heldout), error_cm(label, constant, y_heldout, heldout)
+    return float(np.mean([frame[mask].mean() - frame[~mask].mean()
+                          for frame, mask in zip(predicted, truth, strict=True) if mask.any()]))  # fmt: skip
 
 
 def main(args: Args) -> None:
@@ -93,11 +83,12 @@ def main(args: Args) -> None:
         started = time.time()
         for update in range(args.updates + 1):
             if update in probe_at:
-                error, constant = target_error_cm(agent, train, heldout)
+                (probe,) = probe_entries(agent, train, heldout, "", ("target_xy",), ("linear",), 0, args.seed)
                 entry = {"cameras": cameras, "mask_weight": weight, "update": update,
                          "seconds": round(time.time() - started, 1),
-                         "mask_contrast": round(mask_contrast(agent, heldout), 4), "target_xy_ridge_cm": error,
-                         "target_xy_constant_cm": constant, "train_scenes": len(train),
+                         "mask_contrast": round(mask_contrast(agent, heldout), 4),
+                         "target_xy_ridge_cm": probe["heldout_median_cm"],
+                         "target_xy_constant_cm": probe["constant_median_cm"], "train_scenes": len(train),
                          "heldout_scenes": len(heldout), "batch": args.batch}  # fmt: skip
                 print(json.dumps(entry), flush=True)
                 with open(args.out / "results.jsonl", "a") as file:

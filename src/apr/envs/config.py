@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, get_args
 
 Vec3 = tuple[float, float, float]
 
@@ -229,6 +229,8 @@ VERSIONS: dict[str, dict[str, bool]] = {
 15-step limit in the task, v2 lets a tilted gripper reach the grasp height, v3 turns it about its tool tip (measured,
 not carried on), v4 frames the passive cameras on the tray (:data:`PASSIVE_CAMERAS`)."""
 PassiveCameras = Literal["wide", "sides", "front"]
+PASSIVE_LAYOUTS: tuple[PassiveCameras, ...] = get_args(PassiveCameras)
+"""Every layout of the passive cameras (:func:`apr.envs.world.passive_cameras`)."""
 PASSIVE_CAMERAS: dict[str, PassiveCameras] = {"v0": "wide", "v1": "wide", "v2": "wide", "v3": "wide", "v4": "sides"}
 """The passive model's cameras by version (:func:`apr.envs.world.passive_cameras`): "wide" (v0-v3: 50 deg, the tray a
 third of each image), "sides" (v4: framed on the tray from its front, left and right). "front" (framed on the tray,

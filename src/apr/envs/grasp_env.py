@@ -12,7 +12,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from apr.envs.config import CAMERA, GRASP, HEAD, PHYSICS, REWARD, PassiveCameras
+from apr.envs.config import CAMERA, GRASP, HEAD, PASSIVE_LAYOUTS, PHYSICS, REWARD, PassiveCameras
 from apr.envs.task import GraspTask
 from apr.envs.world import GraspWorld, passive_cameras
 from apr.foveation import FOVEATIONS, foveate
@@ -408,7 +408,7 @@ class PassiveGraspEnv(GraspEnv):
                          render_size=render_size, reveal_target=reveal_target,
                          limit_in_task=limit_in_task, tilted_reach=tilted_reach,
                          tilt_about_tip=tilt_about_tip)  # fmt: skip
-        _check_choice("cameras", cameras, ("wide", "sides", "front"))
+        _check_choice("cameras", cameras, PASSIVE_LAYOUTS)
         self.camera_layout = cameras
         """The cameras' layout (:data:`apr.envs.config.PASSIVE_CAMERAS`, by version)."""
         self.cameras = passive_cameras(cameras)

@@ -16,7 +16,7 @@ import pybullet as p
 import pybullet_data
 from pybullet_utils.bullet_client import BulletClient
 
-from apr.envs.config import CAMERA, OBJECTS, PHYSICS, SCENE, PassiveCameras
+from apr.envs.config import CAMERA, OBJECTS, PASSIVE_LAYOUTS, PHYSICS, SCENE, PassiveCameras
 from apr.envs.head import Head
 from apr.envs.objects import object_urdf
 from apr.envs.rendering import Camera, claim_renderer, load_egl, release, render
@@ -260,7 +260,7 @@ def passive_cameras(layout: PassiveCameras = "sides") -> list[Camera]:
     elif layout == "front":
         placements = zip(CAMERA.front_azimuths_deg, CAMERA.front_distances, strict=True)
     else:
-        raise ValueError(f"layout must be one of ('wide', 'sides', 'front'), got {layout!r}")
+        raise ValueError(f"layout must be one of {PASSIVE_LAYOUTS}, got {layout!r}")
     aim, elevation = np.array(CAMERA.tray_aim), math.radians(CAMERA.tray_elevation_deg)
     cameras = []
     for azimuth, distance in placements:

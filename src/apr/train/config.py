@@ -499,11 +499,11 @@ CPU_SCALE = {
 _LEARNED_4D_CPU = CPU_SCALE["cpu-active-learned-4d"][1]
 
 
-def _learned_4d_variant(name: str, description: str, **model: Any) -> list[tuple[str, tuple[str, TrainConfig]]]:
+def _learned_4d_variant(name: str, description: str, **model: Any) -> tuple[str, tuple[str, TrainConfig]]:
     """``cpu-active-learned-4d-NAME``: the CPU learned-fixation row with one change of its fixation bandit."""
     full = f"cpu-active-learned-4d-{name}"
     config = dataclasses.replace(_LEARNED_4D_CPU, preset=full, model=_LEARNED_4D_CPU.model.replace(**model))
-    return [(full, (f"cpu-active-learned-4d with {description}", config))]
+    return full, (f"cpu-active-learned-4d with {description}", config)
 
 
 CPU_4D_MODEL: dict[str, Any] = dict(n_step=1)
@@ -520,13 +520,13 @@ PRESETS: dict[str, tuple[str, TrainConfig]] = {
                 "reaches a coordinate, hardly looks: its blind numbers are in the README",
                 env=dict(dof=4, reveal_target=True, **CPU_RENDERING),
                 model=ModelConfig.tiny(heads_see_fixation=True, **{**RECIPE, **CPU_4D_MODEL}, **CPU_MODEL), **CPU_RUN),
-        *_learned_4d_variant("no-relabel", "the paper's fixation learning to the letter: the bandit regresses the "
-                             "episode's grasp reward of the chosen point only, no relabelling",
+        _learned_4d_variant("no-relabel", "the paper's fixation learning to the letter: the bandit regresses the "
+                            "episode's grasp reward of the chosen point only, no relabelling",
                              fixation_reward="grasp", fixation_relabels=0),
-        *_learned_4d_variant("tip-proximity", "the bandit's relabelled points earn, when an object was lifted, "
+        _learned_4d_variant("tip-proximity", "the bandit's relabelled points earn, when an object was lifted, "
                              "1 - d / 10 cm, d to the tool tip at the grasp's start (ours; the robot's knowledge only)",
                              fixation_reward="tip-proximity"),
-        *_learned_4d_variant("proximity", "SHAPING FROM THE SIMULATOR, not a Table 1 row: the bandit regresses "
+        _learned_4d_variant("proximity", "SHAPING FROM THE SIMULATOR, not a Table 1 row: the bandit regresses "
                              "1 - d / 10 cm, d from the point to the nearest object centre as the simulator reports it",
                              fixation_reward="proximity", fixation_proximity_radius=0.10),
         _preset("smoke", "tiny sizes, a few grasps: the whole pipeline in about a minute on a CPU",
