@@ -46,6 +46,9 @@ class Args:
     """A run folder of a learned-fixation preset, with its checkpoints."""
     rewards: tuple[Reward, ...] = ("grasp", "tip-proximity", "proximity")
     """The labels the upper-bound critic is trained on, one critic each."""
+    radii_cm: tuple[float, ...] = (10.0,)
+    """The radius of the hindsight labels ("grasp", "tip-proximity"), one critic each: the paper's 10 cm, or narrower
+    balls and cones around the tool tip (ours; the robot's knowledge still)."""
     updates: int = 3000
     relabels: int = 64
     batch: int = 32
@@ -102,7 +105,9 @@ def main(args: Args) -> dict:
     rng = torch.Generator().manual_seed(args.seed)
     tensors = {name: torch.from_numpy(value) for name, value in
                {"action": action, "lifted": lifted, "tip": tip, "centres": centres}.items()}  # fmt: skip
-    for kind in args.rewards:
+    variants = [(kind, radius) for kind in args.rewards
+                for radius in ((REWARD.fixation_radius * 100,) if kind == "proximity" else args.radii_cm)]  # fmt: skip
+    for kind, radius_cm in variants:
         heads = PolicyHeads(r.shape[1], 3, tuple(model.head_channels), grid=r.shape[-1], critic="map")
         optimizer = torch.optim.Adam(heads.critic.parameters(), lr=model.sac_lr)
         for _ in range(args.updates):
@@ -113,7 +118,7 @@ def main(args: Args) -> dict:
             else:
                 profile = "ball" if kind == "grasp" else "cone"
                 labels = hindsight_grasp_reward(points, tensors["lifted"][index], tensors["tip"][index],
-                                                REWARD.fixation_radius, profile)  # fmt: skip
+                                                radius_cm / 100, profile)  # fmt: skip
             loss, _ = bandit_critic_loss(heads, r[index], points, labels)
             optimizer.zero_grad()
             loss.backward()
@@ -121,7 +126,8 @@ def main(args: Args) -> dict:
         with torch.no_grad():
             best = heads.critic.best_xy(r[held])
         points = fixation_points(torch.cat([best, torch.zeros(len(best), 1)], dim=1)).numpy()
-        report[f"critic_{kind}_held_out_cm"] = float(np.median(nearest_xy_cm(points, centres[held])))
+        name = kind if radius_cm == REWARD.fixation_radius * 100 else f"{kind}@{radius_cm:g}cm"
+        report[f"critic_{name}_held_out_cm"] = float(np.median(nearest_xy_cm(points, centres[held])))
     print(json.dumps(report))
     return report
 

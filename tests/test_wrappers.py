@@ -243,3 +243,32 @@ def test_vanilla_run_resumes_from_its_checkpoint(tmp_path: Path, one_thread, mon
     rows = (folder / "metrics.csv").read_text().splitlines()
     assert [row.split(",")[0] for row in rows] == ["grasps", "1", "3"]
     assert not (folder / "checkpoints").exists() and (folder / "model.zip").is_file()
+
+
+def test_downward_exploration_draws_the_benchmarks_random_policy(make_env) -> None:
+    """With --down-probability 0.9 a SAC warm-up action moves straight down 9 times in 10 (the rest uniform) and DQN's
+    random draws pick -z as often; the environment's own space stays uniform; the preset says so."""
+    pytest.importorskip("stable_baselines3")
+    import stable_baselines3 as sb3
+
+    from apr.bench.vanilla import VanillaArgs, bias_exploration, trained_preset
+
+    env = ImageObservation(make_env(BENCHMARK_ENV_ID, render_size=64))
+    model = sb3.SAC("MultiInputPolicy", env, learning_starts=1_000, buffer_size=10, device="cpu", seed=0)
+    bias_exploration(model, 0.9, seed=0, table=None)
+    warmup = np.array([model._sample_action(learning_starts=1_000)[1][0] for _ in range(2_000)])
+    down = warmup[:, 2] == -1.0
+    assert 0.87 < down.mean() < 0.93
+    assert np.abs(warmup[~down]).max() <= 1.0 and warmup[~down, 0].std() > 0.5  # the rest uniform
+    assert not (np.array([env.action_space.sample()[2] for _ in range(200)]) == -1.0).any()
+
+    discrete = DiscreteActions(ImageObservation(make_env(BENCHMARK_ENV_ID, render_size=64)))
+    dqn = sb3.DQN("MultiInputPolicy", discrete, buffer_size=10, device="cpu", seed=0)
+    bias_exploration(dqn, 0.9, seed=0, table=discrete.table)
+    dqn.exploration_rate = 1.0
+    observation = dqn.env.reset()  # a VecEnv: one environment, batched
+    draws = np.array([dqn.predict(observation)[0][0] for _ in range(1_000)])
+    assert dqn.action_space.down == 5 and (discrete.table[5] == [0, 0, -1, 0]).all()
+    assert 0.88 < (draws == 5).mean() < 0.94  # 0.9 + 0.1 / 9
+    assert trained_preset("sb3-sac", VanillaArgs(down_probability=0.9), 4) == "sb3-sac-benchmark-4d-down90"
+    assert trained_preset("sb3-sac", VanillaArgs(), 4) == "sb3-sac-benchmark-4d"

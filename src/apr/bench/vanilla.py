@@ -128,6 +128,12 @@ class VanillaArgs:
     stack_views: bool = False
     """Stack the views' channels into one image (one NatureCNN for all views) instead of SB3's one CNN per image
     entry (its ``MultiInputPolicy`` default): with passive-target's three views an update then costs about a third."""
+    down_probability: float = 0.0
+    """The chance that a trained baseline's random action moves straight down (dz = -1, the rest uniform): SAC's
+    warm-up steps (``--sac.learning-starts``) and DQN's epsilon draws. 0: the library's uniform draws; 0.9: the
+    benchmark's own random policy (bullet3's ``ContinuousDownwardBiasPolicy`` for ``KukaDiverseObjectEnv``, its
+    ``height_hack_prob``), without which 15 uniform steps rarely bring the gripper down to the grasp height. The run's
+    preset then ends in ``-down90``."""
     threads: int = 1
     """torch threads. On this 2-core CPU beside other jobs, 2 threads made an update 4 times slower than 1."""
     sac: SacSettings = field(default_factory=SacSettings)
@@ -281,8 +287,57 @@ def library_policy(model: Any, wrapper: ImageObservation, table: np.ndarray | No
 # ---------------------------------------------------------------------------------------------------- run folders
 def preset_name(baseline: str, task: str, dof: int) -> str:
     """The run's ``preset`` in config.json, e.g. ``sb3-sac-benchmark-4d`` (a trained one with ``--stack-views``:
-    ``-stacked`` after it)."""
+    ``-stacked`` after it; with ``--down-probability P``: ``-downP`` in percent, last)."""
     return f"{baseline}-{task}-{dof}d"
+
+
+def trained_preset(baseline: str, args: VanillaArgs, dof: int) -> str:
+    """The preset of a trained baseline: :func:`preset_name` and its options, e.g. ``sb3-sac-benchmark-4d-down90``."""
+    down = f"-down{round(100 * args.down_probability)}" if args.down_probability else ""
+    return preset_name(baseline, args.task, dof) + ("-stacked" if args.stack_views else "") + down
+
+
+class DownwardBox(gym.spaces.Box):
+    """A continuous action space whose random draws are the benchmark's random policy: uniform, except that with
+    ``probability`` dz (the third number) is -1. SB3 draws its warm-up actions from the algorithm's ``action_space``;
+    the environment's own space stays uniform."""
+
+    def __init__(self, space: gym.spaces.Box, probability: float) -> None:
+        super().__init__(space.low, space.high, space.shape, space.dtype)
+        self.probability = probability
+
+    def sample(self, *args: Any, **kwargs: Any) -> np.ndarray:
+        action = super().sample(*args, **kwargs)
+        if self.np_random.random() < self.probability:
+            action[2] = self.low[2]
+        return action
+
+
+class DownwardDiscrete(gym.spaces.Discrete):
+    """:class:`DownwardBox` for :class:`apr.envs.wrappers.DiscreteActions`: with ``probability`` the draw is the
+    action that moves down one unit (-z), else uniform over all."""
+
+    def __init__(self, space: gym.spaces.Discrete, table: np.ndarray, probability: float) -> None:
+        super().__init__(int(space.n), start=int(space.start))
+        down = np.zeros(table.shape[1], table.dtype)
+        down[2] = -1.0
+        self.down = int(np.flatnonzero((table == down).all(axis=1))[0]) + int(space.start)
+        self.probability = probability
+
+    def sample(self, *args: Any, **kwargs: Any) -> np.int64:
+        if self.np_random.random() < self.probability:
+            return np.int64(self.down)
+        return super().sample(*args, **kwargs)
+
+
+def bias_exploration(model: Any, probability: float, seed: int, table: np.ndarray | None) -> None:
+    """Make ``model``'s random actions (SAC's warm-up, DQN's epsilon draws) the benchmark's downward-biased ones."""
+    if not probability:
+        return
+    space = model.action_space
+    model.action_space = (DownwardBox(space, probability) if table is None
+                          else DownwardDiscrete(space, table, probability))  # fmt: skip
+    model.action_space.seed(seed)
 
 
 def run_dir(out: Path, preset: str, seed: int) -> Path:
@@ -432,7 +487,7 @@ def run_trained(baseline: str, args: VanillaArgs, seed: int, env_id: str, kwargs
 
     eval_at = sorted(set(args.eval_at))
     total_grasps = eval_at[-1]
-    preset = preset_name(baseline, args.task, dof) + ("-stacked" if args.stack_views else "")
+    preset = trained_preset(baseline, args, dof)
     path = run_dir(args.out, preset, seed)
     if is_finished(path) and not args.rerun:
         print(f"{path}: finished, kept")
@@ -445,6 +500,7 @@ def run_trained(baseline: str, args: VanillaArgs, seed: int, env_id: str, kwargs
               "library": f"stable-baselines3 {sb3.__version__}", "torch": torch.__version__,
               "algorithm": "SAC" if baseline == "sb3-sac" else "DQN", "policy": "MultiInputPolicy",
               "settings": settings, "threads": args.threads, "stack_views": args.stack_views,
+              **({"down_probability": args.down_probability} if args.down_probability else {}),
               "wrappers": ["ImageObservation", *(["DiscreteActions"] if discrete else [])]}  # fmt: skip
     checkpoint = last_checkpoint(path, config)
     if checkpoint is None:
@@ -466,6 +522,7 @@ def run_trained(baseline: str, args: VanillaArgs, seed: int, env_id: str, kwargs
         print(f"{path}: resumed at {state['grasps']} grasps ({model.num_timesteps} steps)", flush=True)
     wrapper = env if not discrete else env.env
     table = env.table if discrete else None
+    bias_exploration(model, args.down_probability, seed + state["grasps"], table)
     policy = library_policy(model, wrapper, table)
     started = time.perf_counter() - state["wall_s"]
     clock = {"eval_s": state["eval_s"]}
@@ -487,8 +544,9 @@ def run_trained(baseline: str, args: VanillaArgs, seed: int, env_id: str, kwargs
                 recent.append((float(info.get("grasp_success", False)), float(info.get("grasp_attempted", False))))
                 del recent[:-100]
                 bar.update()
-                bar.set_postfix(success=f"{np.mean([won for won, _ in recent]):.0%}", updates=self.model._n_updates,
-                                refresh=False)  # fmt: skip
+                bar.set_postfix(success=f"{np.mean([won for won, _ in recent]):.0%}",
+                                attempts=f"{np.mean([tried for _, tried in recent]):.0%}",
+                                updates=self.model._n_updates, refresh=False)  # fmt: skip
                 if self.grasps in eval_at:
                     evaluate_now(self.grasps, self.num_timesteps, self.model._n_updates)
                 if self.grasps in checkpoint_at:
@@ -539,6 +597,8 @@ def run(args: VanillaArgs) -> Path:
         checks.at_least("--eval-episodes", args.eval_episodes, 1),
         checks.at_least("--threads", args.threads, 1),
         checks.at_least("--checkpoint-every", args.checkpoint_every, 0),
+        None if 0 <= args.down_probability <= 1 else f"--down-probability must be in [0, 1], got "
+                                                      f"{args.down_probability}",
         None if args.eval_at and min(args.eval_at) >= 1 else "--eval-at needs grasp counts of at least 1",
         None if args.seeds else "--seeds needs at least one seed",
         *(None if path.exists() else f"--compare {path} does not exist" for path in args.compare),
