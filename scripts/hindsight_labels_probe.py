@@ -10,7 +10,8 @@ centres). From the run's newest checkpoint and its replay this script reports:
 3. an upper bound of the bandit's critic on this encoder: a fresh map critic (the preset's size) trained on the frozen
    ``r`` of the first 80% of the samples, each with 64 relabelled points, with the labels of ``--rewards`` (the
    paper's grasp reward relabelled, "grasp"; its cone, "tip-proximity"; the simulator's object centres, "proximity",
-   the label a probe may read), and its best point's distance to the nearest object on the last 20%, beside one
+   the label a probe may read; the paper's grasp reward of the chosen point alone, not relabelled, "chosen"), and its
+   best point's distance to the nearest object on the last 20%, beside one
    fixed point (the bin centre) and the run's own points on those samples.
 
     python scripts/hindsight_labels_probe.py results/table1-cpu/cpu-active-learned-4d__s0
@@ -37,7 +38,7 @@ from apr.reproduce.policies import load_run
 from apr.train.checkpoints import newest_intact, replay_file
 from apr.train.replay import ReplayBuffer, ReplaySpec
 
-Reward = Literal["grasp", "tip-proximity", "proximity"]
+Reward = Literal["grasp", "tip-proximity", "proximity", "chosen"]
 
 
 @dataclass
@@ -103,17 +104,21 @@ def main(args: Args) -> dict:
     report["held_out_run_looked_cm"] = float(np.median(looked[held]))
     model = config.model
     rng = torch.Generator().manual_seed(args.seed)
-    tensors = {name: torch.from_numpy(value) for name, value in
-               {"action": action, "lifted": lifted, "tip": tip, "centres": centres}.items()}  # fmt: skip
+    arrays = {"action": action, "reward": reward, "lifted": lifted, "tip": tip, "centres": centres}
+    tensors = {name: torch.from_numpy(value) for name, value in arrays.items()}
+    paper_radius = (REWARD.fixation_radius * 100,)
     variants = [(kind, radius) for kind in args.rewards
-                for radius in ((REWARD.fixation_radius * 100,) if kind == "proximity" else args.radii_cm)]  # fmt: skip
-    for kind, radius_cm in variants:
+                for radius in (paper_radius if kind in ("proximity", "chosen") else args.radii_cm)]  # fmt: skip
+    for kind, radius_cm in variants:  # "chosen": the point the run chose and its reward, one per sample
         heads = PolicyHeads(r.shape[1], 3, tuple(model.head_channels), grid=r.shape[-1], critic="map")
         optimizer = torch.optim.Adam(heads.critic.parameters(), lr=model.sac_lr)
         for _ in range(args.updates):
             index = torch.randint(train.stop, (args.batch,), generator=rng)
             points = torch.rand((args.batch, args.relabels, 3), generator=rng) * 2 - 1
-            if kind == "proximity":
+            if kind == "chosen":
+                points = tensors["action"][index][:, None].float()
+                labels = tensors["reward"][index][:, None].float()
+            elif kind == "proximity":
                 labels = proximity_reward(points, tensors["centres"][index], REWARD.fixation_radius)
             else:
                 profile = "ball" if kind == "grasp" else "cone"
