@@ -6,7 +6,8 @@ centres). From the run's newest checkpoint and its replay this script reports:
 
 1. where the labels point: for every lift, the xy distance (cm) from the tool tip at the grasp's start to the nearest
    object centre. Hindsight relabelling can only teach a look as precise as that.
-2. where the run looked: the xy distance from the points it chose to the nearest object, early and late in training.
+2. where the run looked: the xy distance from the points it chose to the nearest object, early and late in training,
+   and the grasp reward of its samples by that distance (what looking near an object earns the chosen point).
 3. an upper bound of the bandit's critic on this encoder: a fresh map critic (the preset's size) trained on the frozen
    ``r`` of the first 80% of the samples, each with 64 relabelled points, with the labels of ``--rewards`` (the
    paper's grasp reward relabelled, "grasp"; its cone, "tip-proximity"; the simulator's object centres, "proximity",
@@ -22,6 +23,7 @@ Prints one JSON object (docs/investigations.md, "The fixation bandit's reward").
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Literal
@@ -92,6 +94,13 @@ def main(args: Args) -> dict:
     fifth = max(count // 5, 1)
     report["looked_first_fifth_cm"] = float(np.median(looked[:fifth]))
     report["looked_last_fifth_cm"] = float(np.median(looked[-fifth:]))
+    edges = (0, 2, 4, 6, 8, 12, math.inf)
+    report["reward_by_look_cm"] = []
+    for low, high in zip(edges[:-1], edges[1:], strict=True):
+        band = (looked >= low) & (looked < high)
+        mean = float(reward[band].mean()) if band.any() else None
+        to = None if math.isinf(high) else high  # JSON has no infinity
+        report["reward_by_look_cm"].append({"from": low, "to": to, "samples": int(band.sum()), "reward": mean})
     bin_centre = np.broadcast_to(np.array(SCENE.bin_centre), chosen.shape)
     report["bin_centre_cm"] = float(np.median(nearest_xy_cm(bin_centre, centres)))
 
