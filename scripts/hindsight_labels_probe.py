@@ -52,6 +52,9 @@ class Args:
     radii_cm: tuple[float, ...] = (10.0,)
     """The radius of the hindsight labels ("grasp", "tip-proximity"), one critic each: the paper's 10 cm, or narrower
     balls and cones around the tool tip (ours; the robot's knowledge still)."""
+    train_samples: tuple[int, ...] = (0,)
+    """How many samples each critic learns from, one critic each: the last N before the held-out ones (0: all of the
+    first 80%). Fewer samples than the run's say how the look improves with the bandit's data."""
     updates: int = 3000
     relabels: int = 64
     batch: int = 32
@@ -116,13 +119,15 @@ def main(args: Args) -> dict:
     arrays = {"action": action, "reward": reward, "lifted": lifted, "tip": tip, "centres": centres}
     tensors = {name: torch.from_numpy(value) for name, value in arrays.items()}
     paper_radius = (REWARD.fixation_radius * 100,)
-    variants = [(kind, radius) for kind in args.rewards
-                for radius in (paper_radius if kind in ("proximity", "chosen") else args.radii_cm)]  # fmt: skip
-    for kind, radius_cm in variants:  # "chosen": the point the run chose and its reward, one per sample
+    variants = [(kind, radius, samples) for kind in args.rewards
+                for radius in (paper_radius if kind in ("proximity", "chosen") else args.radii_cm)
+                for samples in args.train_samples]  # fmt: skip
+    for kind, radius_cm, samples in variants:  # "chosen": the point the run chose and its reward, one per sample
+        first = train.stop - min(samples or train.stop, train.stop)
         heads = PolicyHeads(r.shape[1], 3, tuple(model.head_channels), grid=r.shape[-1], critic="map")
         optimizer = torch.optim.Adam(heads.critic.parameters(), lr=model.sac_lr)
         for _ in range(args.updates):
-            index = torch.randint(train.stop, (args.batch,), generator=rng)
+            index = torch.randint(first, train.stop, (args.batch,), generator=rng)
             points = torch.rand((args.batch, args.relabels, 3), generator=rng) * 2 - 1
             if kind == "chosen":
                 points = tensors["action"][index][:, None].float()
@@ -141,6 +146,7 @@ def main(args: Args) -> dict:
             best = heads.critic.best_xy(r[held])
         points = fixation_points(torch.cat([best, torch.zeros(len(best), 1)], dim=1)).numpy()
         name = kind if radius_cm == REWARD.fixation_radius * 100 else f"{kind}@{radius_cm:g}cm"
+        name += f"/{samples}" if samples else ""
         report[f"critic_{name}_held_out_cm"] = float(np.median(nearest_xy_cm(points, centres[held])))
     print(json.dumps(report))
     return report
