@@ -286,13 +286,14 @@ def library_policy(model: Any, wrapper: ImageObservation, table: np.ndarray | No
 
 # ---------------------------------------------------------------------------------------------------- run folders
 def preset_name(baseline: str, task: str, dof: int) -> str:
-    """The run's ``preset`` in config.json, e.g. ``sb3-sac-benchmark-4d`` (a trained one with ``--stack-views``:
-    ``-stacked`` after it; with ``--down-probability P``: ``-downP`` in percent, last)."""
+    """The run's ``preset`` in config.json, e.g. ``scripted-floor-benchmark-4d``; a trained baseline's adds its
+    options (:func:`trained_preset`)."""
     return f"{baseline}-{task}-{dof}d"
 
 
 def trained_preset(baseline: str, args: VanillaArgs, dof: int) -> str:
-    """The preset of a trained baseline: :func:`preset_name` and its options, e.g. ``sb3-sac-benchmark-4d-down90``."""
+    """The preset of a trained baseline: :func:`preset_name`, then ``-stacked`` with ``--stack-views`` and ``-downP``
+    (percent) with ``--down-probability P``, e.g. ``sb3-sac-benchmark-4d-down90``."""
     down = f"-down{round(100 * args.down_probability)}" if args.down_probability else ""
     return preset_name(baseline, args.task, dof) + ("-stacked" if args.stack_views else "") + down
 
