@@ -134,20 +134,21 @@ def test_presets_resolve_consistently_and_round_trip(name: str):
 
 
 def test_preset_table_matches_the_paper():
-    variants = {f"cpu-active-learned-4d-{name}" for name in ("no-relabel", "tip-proximity", "proximity")}
+    variants = {f"cpu-active-learned-4d-{name}" for name in ("relabel", "tip-proximity", "proximity")}
     assert set(PRESETS) == {
         *PAPER_PRESETS, *(f"cpu-{name}" for name in PAPER_PRESETS), "cpu-4d", *variants, "smoke",
     }  # fmt: skip
     learned = preset("cpu-active-learned-4d")
-    assert (learned.model.fixation_reward, learned.model.fixation_relabels) == ("grasp", 64)  # the paper's reward
+    assert (learned.model.fixation_reward, learned.model.fixation_relabels) == ("grasp", 0)  # the paper's bandit
     for name in variants:  # each variant is one change of the bandit
         changed = {field for field in ("fixation_reward", "fixation_relabels", "fixation_proximity_radius")
                    if getattr(preset(name).model, field) != getattr(learned.model, field)}  # fmt: skip
         assert preset(name).model.replace(**{f: getattr(learned.model, f) for f in changed}) == learned.model, name
         assert preset(name).env == learned.env
-    assert preset("cpu-active-learned-4d-no-relabel").model.fixation_relabels == 0
-    assert preset("cpu-learned-4d") == learned  # its earlier name
-    assert preset("cpu-learned-4d-grasp-reward") == preset("cpu-active-learned-4d-no-relabel")
+    assert preset("cpu-active-learned-4d-relabel").model.fixation_relabels == 64
+    assert preset("cpu-active-learned-4d-proximity").model.fixation_relabels == 64
+    for earlier in ("cpu-learned-4d", "cpu-learned-4d-grasp-reward", "cpu-active-learned-4d-no-relabel"):
+        assert preset(earlier) == learned  # its earlier names
     assert preset("passive-target").env.env_id == "apr/PassiveGrasp-v4"
     assert preset("active-target-no-logpolar").env.foveation == "resize"
     assert preset("active-target-no-representation").model.representation is False
@@ -169,7 +170,7 @@ def test_the_cpu_scale_keeps_the_structure_and_the_recipe_of_each_paper_preset(n
     assert paper.model.n_step == 2 and preset("cpu-4d").model.n_step == 1  # cpu-4d keeps its measured targets
     assert paper.model.heads_see_fixation == paper.env.learned_fixation  # the point chosen, never the target
     assert paper.model.fixation_reward == "grasp"  # the paper's, in every row: never the simulator's objects
-    assert paper.model.fixation_relabels == (8 if paper.env.learned_fixation else 0)
+    assert paper.model.fixation_relabels == 0  # the chosen point's reward only, as the paper
     assert cpu.model.encoder_channels < paper.model.encoder_channels  # the scale: sizes and budgets
     assert (cpu.total_grasps, cpu.max_train_minutes, cpu.env.render_size) == (TABLE1_CPU_GRASPS, 0.0, 128)
     assert (paper.total_grasps, paper.env.render_size) == (25_000 if name == "active-learned-4d" else 70_000, 256)
@@ -232,7 +233,7 @@ def test_a_learned_fixation_looks_with_fixed_views_and_a_map_critic_at_cpu_scale
         paper, cpu = preset(name), preset(f"cpu-{name}")
         assert (paper.env.initial_views, paper.model.fixation_critic) == ("drawn", "tiled")
         assert (cpu.env.initial_views, cpu.model.fixation_critic) == ("fixed", "map") and cpu.problems() == []
-        assert (paper.model.fixation_relabels, cpu.model.fixation_relabels) == (8, 64)
+        assert (paper.model.fixation_relabels, cpu.model.fixation_relabels) == (0, 0)
         assert (paper.model.fixation_reward, cpu.model.fixation_reward) == ("grasp", "grasp")
     assert preset("cpu-active-learned-4d-proximity").model.fixation_proximity_radius == 0.10
     target = preset("cpu-active-target")

@@ -185,8 +185,9 @@ def training_description(manifest: dict) -> str:
     if env.get("env_id"):
         text += f", in `{env['env_id']}`"
     if env.get("target") == "learned":
-        text += (f", its fixation bandit learning from the {model.get('fixation_reward', 'grasp')} reward with "
-                 f"{model.get('fixation_relabels', 0)} relabelled points a sample")  # fmt: skip
+        relabels = int(model.get("fixation_relabels", 0))
+        text += (f", its fixation bandit learning from the {model.get('fixation_reward', 'grasp')} reward of the "
+                 + (f"point chosen and {relabels} relabelled points a sample" if relabels else "point chosen alone"))
     evaluation = manifest.get("final_eval")
     if evaluation:
         text += (

@@ -394,13 +394,14 @@ RECIPE: dict[str, Any] = dict(heads_see_proprioception=True, heads_see_steps_lef
 """The learning recipe of every preset of Table 1, at both scales (ours; docs/decisions.md, "One recipe for Table
 1"): the heads see the gripper pose g and the grasp steps left beside r (the 15-step limit is part of the task:
 "The 15-step limit"), the entropy temperature starts at 0.01, and the grasp critics learn from 2-step returns
-("2-step returns"). With a learned fixation the heads also see the point chosen, and the bandit learns from
-:data:`HINDSIGHT_BANDIT` (:func:`with_recipe`). Never the simulator's target or objects: the rows differ in what
+("2-step returns"). With a learned fixation the heads also see the point chosen, and the bandit learns as
+:data:`PAPER_BANDIT` says (:func:`with_recipe`). Never the simulator's target or objects: the rows differ in what
 they see."""
-HINDSIGHT_BANDIT: dict[str, Any] = dict(fixation_reward="grasp", fixation_relabels=8)
-"""The fixation bandit of the recipe: the paper's grasp reward (Method A), and 8 more points per sample each with the
-grasp reward it would have earned, which the lift and the tool tip at the grasp's start give exactly (hindsight
-relabelling, ours; docs/decisions.md, "The fixation bandit's reward")."""
+PAPER_BANDIT: dict[str, Any] = dict(fixation_reward="grasp", fixation_relabels=0)
+"""The fixation bandit of the recipe, the paper's (Method A: "optimized using the grasp reward only"): its critic
+regresses the episode's grasp reward at the point chosen, and nothing else. Hindsight relabelling (more points per
+sample, each with the grasp reward it would have earned) is a flag, ``--model.fixation-relabels``, out of the recipe:
+on seeds 0 and 1 at CPU scale it did not help (docs/decisions.md, "The fixation bandit's reward")."""
 CPU_MODEL: dict[str, Any] = dict(batch_size=32, gqn_batch_size=8, gqn_update_every=2, channels_last=True)
 """How the CPU scale's learner saves time (ours): batch 32 (8 of them for the ELBO), the ELBO on every second update
 (about half of a tiny update's cost) and channels-last convolutions (about 9% less on this CPU); docs/decisions.md,
@@ -412,12 +413,14 @@ CPU_RUN: dict[str, Any] = dict(
 )  # fmt: skip
 """The CPU presets' run: an hour of a 2-core CPU, a 30-episode evaluation every 200 grasps, 100 at the end."""
 CPU_LOOK_ENV: dict[str, Any] = dict(initial_views="fixed")
-CPU_LOOK_MODEL: dict[str, Any] = dict(fixation_critic="map", fixation_relabels=64)
-"""How a learned fixation looks at CPU scale (ours; the paper presets keep the paper's drawn initial views, tiled
-critic and 8 relabelled points): the views at reset from three fixed viewpoints, so that where an object lies in the
-first images says where it lies on the tray, and the fixation bandit's critic as a map over the fixation box, whose
-best point is the deterministic look, regressing 64 relabelled points per sample, which it reads from one map at
-little cost (docs/decisions.md, "The fixation critic")."""
+CPU_LOOK_MODEL: dict[str, Any] = dict(fixation_critic="map")
+"""How a learned fixation looks at CPU scale (ours; the paper presets keep the paper's drawn initial views and tiled
+critic): the views at reset from three fixed viewpoints, so that where an object lies in the first images says where
+it lies on the tray, and the fixation bandit's critic as a map over the fixation box, whose best point is the
+deterministic look (docs/decisions.md, "The fixation critic")."""
+CPU_RELABELS = 64
+"""Relabelled points per bandit sample of the CPU variants that relabel (``cpu-active-learned-4d-relabel`` and the
+reward variants): the map critic reads all of them from one map at little cost."""
 TABLE1_CPU_GRASPS = 600
 """The grasp budget of every row of Table 1 at CPU scale (ours): where the recipe's learned-fixation run levels off
 on the 2-core CPU (its held-out success at 200, 400 and 600 grasps: 63, 67 and 65% for seed 0; docs/investigations.md,
@@ -437,24 +440,25 @@ CPU_PREFIX = "cpu-"
 """A paper preset's CPU scale is named ``cpu-PRESET`` (:func:`cpu_scale`)."""
 RENAMED_PRESETS = {
     "cpu-learned-4d": "cpu-active-learned-4d",
-    "cpu-learned-4d-grasp-reward": "cpu-active-learned-4d-no-relabel",
+    "cpu-learned-4d-grasp-reward": "cpu-active-learned-4d",
+    "cpu-active-learned-4d-no-relabel": "cpu-active-learned-4d",
 }
 """Presets' earlier names, as old runs' config.json files give them: the settings are the same."""
 
 
 def with_recipe(config: TrainConfig) -> TrainConfig:
     """``config`` with the learning settings of :data:`RECIPE` (and, with a learned fixation, the point chosen
-    in the heads' input and :data:`HINDSIGHT_BANDIT`)."""
+    in the heads' input and :data:`PAPER_BANDIT`)."""
     learned = config.env.learned_fixation
-    changes = {**RECIPE, "heads_see_fixation": learned, **(HINDSIGHT_BANDIT if learned else {})}
+    changes = {**RECIPE, "heads_see_fixation": learned, **(PAPER_BANDIT if learned else {})}
     return dataclasses.replace(config, model=config.model.replace(**changes))
 
 
 SCALE_FREE_MODEL_FIELDS = ("representation", "heads_see_proprioception", "heads_see_fixation", "heads_see_steps_left",
                            "init_temperature", "n_step", "fixation_reward")  # fmt: skip
 """Model fields a scale keeps: the structure (the ablation switch) and the recipe. The rest are sizes, speed and,
-with a learned fixation, how it looks (:data:`CPU_LOOK_MODEL`: the critic, its relabelled points and the proximity
-reward's radius)."""
+with a learned fixation, how it looks (:data:`CPU_LOOK_MODEL`: the critic; and the variants' relabelled points and
+the proximity reward's radius)."""
 
 
 def cpu_scale(name: str, config: TrainConfig) -> TrainConfig:
@@ -520,15 +524,17 @@ PRESETS: dict[str, tuple[str, TrainConfig]] = {
                 "reaches a coordinate, hardly looks: its blind numbers are in the README",
                 env=dict(dof=4, reveal_target=True, **CPU_RENDERING),
                 model=ModelConfig.tiny(heads_see_fixation=True, **{**RECIPE, **CPU_4D_MODEL}, **CPU_MODEL), **CPU_RUN),
-        _learned_4d_variant("no-relabel", "the paper's fixation learning to the letter: the bandit regresses the "
-                            "episode's grasp reward of the chosen point only, no relabelling",
-                             fixation_reward="grasp", fixation_relabels=0),
-        _learned_4d_variant("tip-proximity", "the bandit's relabelled points earn, when an object was lifted, "
-                             "1 - d / 10 cm, d to the tool tip at the grasp's start (ours; the robot's knowledge only)",
-                             fixation_reward="tip-proximity"),
-        _learned_4d_variant("proximity", "SHAPING FROM THE SIMULATOR, not a Table 1 row: the bandit regresses "
-                             "1 - d / 10 cm, d from the point to the nearest object centre as the simulator reports it",
-                             fixation_reward="proximity", fixation_proximity_radius=0.10),
+        _learned_4d_variant("relabel", f"hindsight relabelling (ours): besides the point chosen, {CPU_RELABELS} "
+                            "uniform points per bandit sample, each with the grasp reward it would have earned, from "
+                            "the lift and the tool tip at the grasp's start", fixation_relabels=CPU_RELABELS),
+        _learned_4d_variant("tip-proximity", "relabelled points that earn, when an object was lifted, 1 - d / 10 cm, "
+                             "d to the tool tip at the grasp's start (ours; the robot's knowledge only)",
+                             fixation_reward="tip-proximity", fixation_relabels=CPU_RELABELS),
+        _learned_4d_variant("proximity", "SHAPING FROM THE SIMULATOR, not a Table 1 row: the bandit regresses, at "
+                             "the point chosen and at relabelled points, 1 - d / 10 cm, d from the point to the "
+                             "nearest object centre as the simulator reports it",
+                             fixation_reward="proximity", fixation_proximity_radius=0.10,
+                             fixation_relabels=CPU_RELABELS),
         _preset("smoke", "tiny sizes, a few grasps: the whole pipeline in about a minute on a CPU",
                 env=dict(target="learned", dof=4, **CPU_RENDERING, **CPU_LOOK_ENV),
                 model=ModelConfig.tiny(gqn_update_every=2, channels_last=True, **CPU_LOOK_MODEL),
