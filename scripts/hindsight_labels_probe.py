@@ -15,7 +15,7 @@ centres). From the run's newest checkpoint and its replay this script reports:
    best point's distance to the nearest object on the last 20%, beside one
    fixed point (the bin centre) and the run's own points on those samples.
 
-    python scripts/hindsight_labels_probe.py results/table1-cpu/cpu-active-learned-4d__s0
+    python scripts/hindsight_labels_probe.py results/fixation-reward/cpu-active-learned-4d-relabel__s0
 
 Prints one JSON object (docs/investigations.md, "The fixation bandit's reward").
 """

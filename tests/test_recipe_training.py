@@ -339,7 +339,7 @@ def test_the_bandit_regresses_the_episode_s_grasp_reward_at_the_point_chosen_onl
         actions, rewards = (value.numpy() for value in update.bandit_targets[0])
         assert actions.shape == (len(batch.action), 1, 3) and rewards.shape == (len(batch.action), 1)
         assert np.array_equal(actions[:, 0], batch.action.numpy()) and np.array_equal(rewards[:, 0], batch.reward)
-        rewards_seen |= {(float(r), float(lift)) for r, lift in zip(rewards[:, 0], batch.lifted.numpy())}
+        rewards_seen |= {(float(r), float(lift)) for r, lift in zip(rewards[:, 0], batch.lifted.numpy(), strict=True)}
     assert {(1.0, 1.0), (0.0, 1.0)} <= rewards_seen, rewards_seen
 
 

@@ -24,7 +24,7 @@ from apr.envs.rendering import EGL_INSTALL, resolve
 from apr.machine import machine_description
 from apr.model.agent import APRAgent
 from apr.model.pretrained import load_gqn_init
-from apr.reproduce.runs import blind_eval_files, final_eval
+from apr.reproduce.runs import blind_eval_files, final_eval, run_preset
 from apr.train.checkpoints import CheckpointError, newest_intact, read_checkpoint
 from apr.train.config import TrainConfig, preset
 from apr.train.evaluation import renderer_mismatch, renderer_request
@@ -186,8 +186,9 @@ def training_description(manifest: dict) -> str:
         text += f", in `{env['env_id']}`"
     if env.get("target") == "learned":
         relabels = int(model.get("fixation_relabels", 0))
-        text += (f", its fixation bandit learning from the {model.get('fixation_reward', 'grasp')} reward of the "
-                 + (f"point chosen and {relabels} relabelled points a sample" if relabels else "point chosen alone"))
+        text += f", its fixation bandit learning from the {model.get('fixation_reward', 'grasp')} reward of the " + (
+            f"point chosen and {relabels} relabelled points a sample" if relabels else "point chosen alone"
+        )
     evaluation = manifest.get("final_eval")
     if evaluation:
         text += (
@@ -274,7 +275,8 @@ def package_checkpoint(
     snapshot = load_policy(source)
     run_dir = Path(source) if Path(source).is_dir() else Path(snapshot.source).parent.parent
     config = snapshot.config
-    name = name or f"{config.preset}__s{config.seed}__{snapshot.grasps}grasps"
+    preset_now = run_preset({"preset": config.preset})  # its current name; the manifest's config keeps the old one
+    name = name or f"{preset_now}__s{config.seed}__{snapshot.grasps}grasps"
     out_dir.mkdir(parents=True, exist_ok=True)
     weights = {key: value.detach().cpu().contiguous() for key, value in snapshot.agent.networks.state_dict().items()}
     if weights_format == "safetensors":
@@ -291,7 +293,7 @@ def package_checkpoint(
     manifest = {
         "format": MANIFEST_FORMAT,
         "weights": weights_path.name,
-        "preset": config.preset,
+        "preset": preset_now,
         "seed": config.seed,
         "grasps": snapshot.grasps,
         "command": command
