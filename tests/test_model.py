@@ -435,3 +435,10 @@ def test_the_learner_maps_fixation_actions_to_points_as_the_environment_does() -
     actions = np.random.default_rng(0).uniform(-1, 1, (20, 3))
     expected = np.stack([GraspTask.fixation_from_action(a) for a in actions])
     np.testing.assert_allclose(fixation_points(torch.from_numpy(actions)).numpy(), expected, atol=1e-12)
+
+
+@pytest.mark.parametrize("fixation_temperature", [None, 1.0])
+def test_the_bandit_starts_at_its_own_temperature_and_the_grasp_heads_at_theirs(fixation_temperature) -> None:
+    agent = APRAgent(ModelConfig.tiny(init_temperature=0.01, fixation_init_temperature=fixation_temperature))
+    assert agent.grasp.log_alpha.exp().item() == pytest.approx(0.01)
+    assert agent.fixation.log_alpha.exp().item() == pytest.approx(fixation_temperature or 0.01)

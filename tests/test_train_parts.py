@@ -134,14 +134,16 @@ def test_presets_resolve_consistently_and_round_trip(name: str):
 
 
 def test_preset_table_matches_the_paper():
-    variants = {f"cpu-active-learned-4d-{name}" for name in ("relabel", "tip-proximity", "proximity")}
+    names = ("relabel", "bandit-temperature1", "tip-proximity", "proximity")
+    variants = {f"cpu-active-learned-4d-{name}" for name in names}
     assert set(PRESETS) == {
         *PAPER_PRESETS, *(f"cpu-{name}" for name in PAPER_PRESETS), "cpu-4d", *variants, "smoke",
     }  # fmt: skip
     learned = preset("cpu-active-learned-4d")
     assert (learned.model.fixation_reward, learned.model.fixation_relabels) == ("grasp", 0)  # the paper's bandit
     for name in variants:  # each variant is one change of the bandit
-        changed = {field for field in ("fixation_reward", "fixation_relabels", "fixation_proximity_radius")
+        bandit = ("fixation_reward", "fixation_relabels", "fixation_proximity_radius", "fixation_init_temperature")
+        changed = {field for field in bandit
                    if getattr(preset(name).model, field) != getattr(learned.model, field)}  # fmt: skip
         assert preset(name).model.replace(**{f: getattr(learned.model, f) for f in changed}) == learned.model, name
         assert preset(name).env == learned.env
@@ -202,6 +204,13 @@ def test_a_render_size_the_foveations_cannot_sample_is_refused_by_its_flag(rende
     assert config.problems() == [
         f"--env.render-size must be a positive multiple of 64 (the paper: 256), got {render_size}"
     ]
+
+
+def test_the_bandit_s_own_temperature_is_checked_like_the_others():
+    config = preset("cpu-active-learned-4d-bandit-temperature1")
+    assert config.model.fixation_init_temperature == 1.0 and config.problems() == []
+    config.model.fixation_init_temperature = 0.0
+    assert config.problems() == ["--model.fixation-init-temperature must be above 0, got 0.0"]
 
 
 def test_fixed_initial_views_reach_the_active_env_and_the_passive_one_refuses_them():

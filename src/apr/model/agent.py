@@ -264,8 +264,10 @@ class APRAgent:
                 init_temperature=config.init_temperature,
             )
             self.grasp = PolicyHeads(head_inputs, config.grasp_action_dim, **head_args)
+            fixation_temperature = config.fixation_init_temperature or config.init_temperature
+            fixation_args = dict(head_args, init_temperature=fixation_temperature)
             self.fixation = PolicyHeads(head_inputs, config.fixation_action_dim, target_critic=False,
-                                        critic=config.fixation_critic, **head_args)  # fmt: skip
+                                        critic=config.fixation_critic, **fixation_args)  # fmt: skip
         self.networks = nn.ModuleDict({"encoder": self.encoder, "grasp": self.grasp, "fixation": self.fixation})
         if self.generator is not None:
             self.networks["generator"] = self.generator

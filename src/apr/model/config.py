@@ -120,6 +120,11 @@ class ModelConfig:
     init_temperature: float = 1.0
     """Initial entropy temperature alpha (Haarnoja et al. 2018b reference code: 1.0; the Table 1 presets' recipe:
     0.01, docs/decisions.md)."""
+    fixation_init_temperature: float | None = None
+    """The fixation bandit's initial temperature, where it differs from the grasp heads'; None: ``init_temperature``.
+    The recipe's 0.01 keeps a grasp policy that never attempts from living off the entropy bonus; a bandit has no
+    bootstrap, so nothing of that applies to it, and a low start narrows where it looks before its critic has learned
+    (docs/investigations.md, "The fixation bandit's exploration")."""
     batch_size: int = 256
     """Grasp transitions per update (Haarnoja et al. 2018: 256)."""
     fixation_batch_size: int = 256

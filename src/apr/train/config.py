@@ -374,6 +374,8 @@ def _field_problems(config: TrainConfig) -> list[tuple[str, str]]:
     for name in ("gamma", "tau"):
         if getattr(model, name) > 1:
             found.append((f"model.{name}", f"must be at most 1, got {getattr(model, name)}"))
+    if model.fixation_init_temperature is not None:
+        number("model.fixation_init_temperature", model.fixation_init_temperature, 0.0, strict=True)
     if model.log_std_min >= model.log_std_max:
         found.append(("model.log_std_min", f"must be below --model.log-std-max ({model.log_std_max})"))
     return found
@@ -527,6 +529,9 @@ PRESETS: dict[str, tuple[str, TrainConfig]] = {
         _learned_4d_variant("relabel", f"hindsight relabelling (ours): besides the point chosen, {CPU_RELABELS} "
                             "uniform points per bandit sample, each with the grasp reward it would have earned, from "
                             "the lift and the tool tip at the grasp's start", fixation_relabels=CPU_RELABELS),
+        _learned_4d_variant("bandit-temperature1", "the fixation bandit's entropy temperature starting at the paper's "
+                            "1 (Haarnoja et al.) instead of the recipe's 0.01, which the grasp heads keep",
+                            fixation_init_temperature=1.0),
         _learned_4d_variant("tip-proximity", "relabelled points that earn, when an object was lifted, 1 - d / 10 cm, "
                              "d to the tool tip at the grasp's start (ours; the robot's knowledge only)",
                              fixation_reward="tip-proximity", fixation_relabels=CPU_RELABELS),
