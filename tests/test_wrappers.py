@@ -5,6 +5,7 @@ extra)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import warnings
 from pathlib import Path
@@ -187,13 +188,25 @@ def test_vanilla_runner_smoke(tmp_path: Path, one_thread) -> None:
     config = json.loads((args.out / "sb3-sac-benchmark-4d__s0" / "config.json").read_text())
     assert config["total_grasps"] == 2 and config["settings"]["buffer_size"] == 2 * GRASP.max_grasp_steps
     assert (args.out / "sb3-sac-benchmark-4d__s0" / "model.zip").is_file()
+    for preset in ("sb3-sac-benchmark-4d", "sb3-dqn-benchmark-4d"):  # the final policy, given another scene's images
+        blind = json.loads((args.out / f"{preset}__s0" / "eval" / "blind_both_00000002.json").read_text())
+        assert blind["blind"] == "both" and blind["episodes"] == 2 and blind["grasps"] == 2
+        assert [outcome["seed"] for outcome in blind["outcomes"]] == [EVAL_SEED, EVAL_SEED + 1]
     text = table.read_text()
     assert "cpu-active-learned-4d (apr)" in text and "four-times claim" in text
     claims = json.loads(table.with_suffix(".json").read_text())["four_times"]
     assert {(c["library"], c["apr_grasps"], c["library_grasps"]) for c in claims} == {
         ("sb3-sac-benchmark-4d", 1, 2), ("sb3-dqn-benchmark-4d", 1, 2)}  # fmt: skip
+    rows = {row["preset"]: row for row in json.loads(table.with_suffix(".json").read_text())["rows"]}
+    assert set(rows["sb3-dqn-benchmark-4d"]["blind"]) == {"0"} and rows["scripted-floor-benchmark-4d"]["blind"] == {}
     assert (args.out / "vanilla_curves.png").is_file()
     assert run(VanillaArgs(out=args.out, baselines=("scripted-floor",), eval_episodes=2, render_size=64)) == table
+    # a finished run made before blind evaluations existed gets one from its saved model, and is not trained again
+    dqn = args.out / "sb3-dqn-benchmark-4d__s0"
+    (dqn / "eval" / "blind_both_00000002.json").unlink()
+    before = (dqn / "metrics.csv").read_text()
+    run(dataclasses.replace(args, baselines=("sb3-dqn",)))
+    assert (dqn / "eval" / "blind_both_00000002.json").is_file() and (dqn / "metrics.csv").read_text() == before
 
 
 def test_vanilla_run_resumes_from_its_checkpoint(tmp_path: Path, one_thread, monkeypatch, capsys) -> None:

@@ -183,67 +183,72 @@ def make_env(env_id: str, kwargs: dict[str, Any], split: str, discrete: bool = F
     return DiscreteActions(env) if discrete else env
 
 
-class _OneEnvPool:
-    """apr's worker pool (:class:`apr.train.workers.Workers`) over one environment of this process: the evaluation
-    steps it in turn, with no process to start (TinyRenderer serves any number of worlds in one process)."""
+class _InProcessPool:
+    """apr's worker pool (:class:`apr.train.workers.Workers`) over environments of this process: the evaluation
+    steps them in turn, with no process to start (TinyRenderer serves any number of worlds in one process)."""
 
-    def __init__(self, env: gym.Env) -> None:
-        self.env = env
-        self._answer: Any = None
+    def __init__(self, envs: Sequence[gym.Env]) -> None:
+        self.envs = list(envs)
+        self._answers: list[Any] = [None] * len(self.envs)
 
     def __len__(self) -> int:
-        return 1
+        return len(self.envs)
 
     def send_reset(self, index: int, seed: int) -> None:
-        self._answer = self.env.reset(seed=seed)
+        self._answers[index] = self.envs[index].reset(seed=seed)
 
     def send_step(self, index: int, action: Any) -> None:
         from apr.train.workers import StepResult
 
-        observation, reward, terminated, truncated, info = self.env.step(action)
-        self._answer = StepResult(observation, float(reward), bool(terminated), bool(truncated), info)
+        observation, reward, terminated, truncated, info = self.envs[index].step(action)
+        self._answers[index] = StepResult(observation, float(reward), bool(terminated), bool(truncated), info)
 
     def receive(self, index: int) -> Any:
-        answer, self._answer = self._answer, None
+        answer, self._answers[index] = self._answers[index], None
         return answer
 
     def pid(self, index: int) -> int | None:
         return None
 
     def on_this_machine(self) -> int:
-        return 1
+        return len(self.envs)
 
     def describe(self) -> str:
-        return "one environment in this process"
+        return f"{len(self.envs)} environment(s) in this process"
 
     def renderers(self) -> list[str]:
-        return [self.env.unwrapped.renderer_in_use()]
+        return [env.unwrapped.renderer_in_use() for env in self.envs]
 
     def close(self) -> None:
-        """The environment stays open: the next evaluation of the run takes it again."""
+        """The environments stay open: the next evaluation of the run takes them again."""
 
-    def __enter__(self) -> _OneEnvPool:
+    def __enter__(self) -> _InProcessPool:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
 
 
-class OneEnvWorkers:
-    """A :class:`apr.train.workers.WorkersFactory` that hands every evaluation the same held-out environment, built
-    once (its ``env_id`` and keyword arguments, not the evaluation's, which name apr's own environments)."""
+class InProcessWorkers:
+    """A :class:`apr.train.workers.WorkersFactory` that hands every evaluation held-out environments of this process,
+    built once each as the evaluations need them (one; two for a blind evaluation, which pairs scenes), with its
+    ``env_id`` and keyword arguments, not the evaluation's, which name apr's own environments."""
 
     backend = "local"
 
     def __init__(self, env_id: str, kwargs: dict[str, Any]) -> None:
-        self.env = gym.make(env_id, split="test", **kwargs)
+        self.env_id, self.kwargs = env_id, kwargs
+        self.envs: list[gym.Env] = []
 
     def __call__(self, num_workers: int, env_id: str, env_kwargs: dict[str, Any], *,
-                 evaluation: bool = False) -> _OneEnvPool:  # fmt: skip
-        return _OneEnvPool(self.env)
+                 evaluation: bool = False) -> _InProcessPool:  # fmt: skip
+        while len(self.envs) < max(num_workers, 1):
+            self.envs.append(gym.make(self.env_id, split="test", **self.kwargs))
+        return _InProcessPool(self.envs[: max(num_workers, 1)])
 
     def close(self) -> None:
-        self.env.close()
+        for env in self.envs:
+            env.close()
 
 
 # ---------------------------------------------------------------------------------------------------- policies
@@ -421,16 +426,42 @@ def _append_metrics(path: Path, row: dict) -> None:
         writer.writerow({name: row.get(name, "") for name in METRICS_COLUMNS})
 
 
-def _evaluate(policy: Policy, workers: OneEnvWorkers, env_id: str, dof: int, episodes: int) -> dict:
+def _evaluate(policy: Policy, workers: InProcessWorkers, env_id: str, dof: int, episodes: int,
+              blind: str = "") -> dict:  # fmt: skip
     """apr's held-out evaluation of ``policy`` (seeds EVAL_SEED + k, split "test"), as a dict of
-    :class:`apr.train.evaluation.EvalResult`."""
+    :class:`apr.train.evaluation.EvalResult`; ``blind``: in the phases it names, the policy sees another scene's
+    images (apr's blind baseline, :func:`apr.train.evaluation.evaluate_policy`)."""
     from apr.train.config import EnvConfig
     from apr.train.evaluation import evaluate_policy
 
     # EnvConfig gives the evaluation the grasp action's size and the phases (env target: grasp steps only); the
     # environment itself is the factory's.
     env = EnvConfig(env_id=env_id, dof=dof, target="env")  # type: ignore[arg-type]
-    return evaluate_policy(policy, env, episodes, "test", num_workers=1, workers=workers).to_dict()
+    return evaluate_policy(policy, env, episodes, "test", num_workers=1, workers=workers, blind=blind).to_dict()
+
+
+def blind_path(path: Path, grasps: int) -> Path:
+    """Where a run's blind evaluation at ``grasps`` goes, as apr names it (:func:`campaign.blind_eval_path`)."""
+    from apr.reproduce.campaign import blind_eval_path
+
+    return blind_eval_path(path, grasps)
+
+
+def evaluate_blind(path: Path, policy: Policy, workers: InProcessWorkers, env_id: str, dof: int, grasps: int) -> dict:
+    """The final policy on the same held-out episodes as its final evaluation, given another scene's images (apr's
+    blind baseline: what it does without seeing its own scene); written to :func:`blind_path`."""
+    from apr.reproduce.campaign import BLIND_MODE
+    from apr.reproduce.runs import read_json
+    from apr.train.checkpoints import write_text_atomically
+
+    own = read_json(path / "eval" / f"eval_{grasps:08d}.json")
+    started = time.perf_counter()
+    result = _evaluate(policy, workers, env_id, dof, int(own["episodes"]), blind=BLIND_MODE)
+    result.update(grasps=grasps, blind=BLIND_MODE, eval_s=round(time.perf_counter() - started, 2))
+    write_text_atomically(blind_path(path, grasps), json.dumps(result, indent=2))
+    print(f"{path}: blind {result['success_rate']:.1%} ({result['successes']}/{result['episodes']}), with its own "
+          f"images {own['success_rate']:.1%}")  # fmt: skip
+    return result
 
 
 # ----------------------------------------------------------------------------------------------------- the runs
@@ -450,7 +481,7 @@ def run_fixed(baseline: str, args: VanillaArgs, seed: int, env_id: str, kwargs: 
               "learns": False}  # fmt: skip
     _start_run(path, config)
     policy = floor_policy(dof) if baseline == "scripted-floor" else random_policy(dof, np.random.default_rng(seed))
-    workers = OneEnvWorkers(env_id, kwargs)
+    workers = InProcessWorkers(env_id, kwargs)
     try:
         started = time.perf_counter()
         result = _evaluate(policy, workers, env_id, dof, args.eval_episodes)
@@ -490,10 +521,22 @@ def run_trained(baseline: str, args: VanillaArgs, seed: int, env_id: str, kwargs
     total_grasps = eval_at[-1]
     preset = trained_preset(baseline, args, dof)
     path = run_dir(args.out, preset, seed)
-    if is_finished(path) and not args.rerun:
-        print(f"{path}: finished, kept")
-        return path
     discrete = baseline == "sb3-dqn"
+    algorithm = sb3.SAC if baseline == "sb3-sac" else sb3.DQN
+    if is_finished(path) and not args.rerun:
+        if blind_path(path, total_grasps).exists() or not (path / "model.zip").exists():
+            print(f"{path}: finished, kept")
+            return path
+        env = make_env(env_id, kwargs, "test", discrete, args.stack_views)
+        workers = InProcessWorkers(env_id, kwargs)
+        try:
+            model = algorithm.load(path / "model.zip", device="cpu")
+            policy = library_policy(model, env if not discrete else env.env, env.table if discrete else None)
+            evaluate_blind(path, policy, workers, env_id, dof, total_grasps)
+        finally:
+            env.close()
+            workers.close()
+        return path
     settings = sb3_settings(baseline, args, total_grasps)
     config = {"preset": preset, "seed": seed, "total_grasps": total_grasps, "baseline": baseline, "task": args.task,
               "env_id": env_id, "env_kwargs": kwargs, "dof": dof, "eval_at": eval_at,
@@ -508,8 +551,7 @@ def run_trained(baseline: str, args: VanillaArgs, seed: int, env_id: str, kwargs
         _start_run(path, config)
     torch.set_num_threads(args.threads)
     env = make_env(env_id, kwargs, "train", discrete, args.stack_views)
-    workers = OneEnvWorkers(env_id, kwargs)
-    algorithm = sb3.SAC if baseline == "sb3-sac" else sb3.DQN
+    workers = InProcessWorkers(env_id, kwargs)
     state = {"grasps": 0, "wall_s": 0.0, "eval_s": 0.0, "recent": []}
     if checkpoint is None:
         model = algorithm("MultiInputPolicy", env, seed=seed, verbose=0, device="cpu", **settings)
@@ -582,6 +624,8 @@ def run_trained(baseline: str, args: VanillaArgs, seed: int, env_id: str, kwargs
         model.learn(total_timesteps=steps_left, callback=GraspCounter(), reset_num_timesteps=checkpoint is None)
         model.save(path / "model.zip")
         shutil.rmtree(path / "checkpoints", ignore_errors=True)
+        bar.close()
+        evaluate_blind(path, policy, workers, env_id, dof, total_grasps)
     finally:
         bar.close()
         env.close()
@@ -631,6 +675,8 @@ class Row:
     seeds: dict[int, dict[int, tuple[int, int]]] = field(default_factory=dict)
     attempts: dict[int, tuple[int, int]] = field(default_factory=dict)
     """Each seed's final evaluation: (attempts, episodes)."""
+    blind: dict[int, tuple[int, int]] = field(default_factory=dict)
+    """Each seed's final policy given another scene's images (``eval/blind_both_*.json``): (successes, episodes)."""
 
     def at(self, grasps: int) -> list[tuple[int, int]]:
         """(successes, episodes) of each seed evaluated at ``grasps``."""
@@ -643,7 +689,7 @@ class Row:
 
 def read_rows(run_dirs: Sequence[Path], apr: bool = False) -> list[Row]:
     """The run folders' evaluations, grouped by preset (in first-seen order); ``apr``: they are apr's runs."""
-    from apr.reproduce.runs import eval_results, find_run_dirs, read_config, run_preset
+    from apr.reproduce.runs import blind_eval_files, eval_results, find_run_dirs, read_config, read_json, run_preset
 
     rows: dict[str, Row] = {}
     for path in find_run_dirs(run_dirs):
@@ -656,6 +702,9 @@ def read_rows(run_dirs: Sequence[Path], apr: bool = False) -> list[Row]:
         seed = int(config.get("seed", 0))
         row.seeds[seed] = {int(r["grasps"]): (int(r["successes"]), int(r["episodes"])) for r in results}
         row.attempts[seed] = (int(results[-1]["attempts"]), int(results[-1]["episodes"]))
+        for blind_file in blind_eval_files(path, int(results[-1]["grasps"]))[:1]:
+            blind = read_json(blind_file)
+            row.blind[seed] = (int(blind["successes"]), int(blind["episodes"]))
     return list(rows.values())
 
 
@@ -697,7 +746,7 @@ def render_table(rows: Sequence[Row], compared: Sequence[Row], claims: Sequence[
     """The table as markdown: held-out success at each grasp count, the final attempts, and the four-times claim."""
     counts = sorted({grasps for row in [*rows, *compared] for grasps in row.grasps if grasps > 0})
     header = ["run", "learns", *(f"{grasps:,} grasps" for grasps in counts), "not learning (0 grasps)",
-              "final attempts (ended at the limit)"]  # fmt: skip
+              "final policy, blind", "final attempts (ended at the limit)"]  # fmt: skip
     lines = ["# Vanilla baselines: held-out success on apr's evaluation episodes", "",
              "| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]  # fmt: skip
     for row in [*rows, *compared]:
@@ -706,7 +755,7 @@ def render_table(rows: Sequence[Row], compared: Sequence[Row], claims: Sequence[
         limit = f"{attempts}/{episodes} ({100 * (1 - attempts / episodes):.1f}% at the limit)" if episodes else ""
         name = row.preset + (" (apr)" if row.apr else "")
         cells = [name, "yes" if row.learns else "no", *(_cell(row.at(grasps)) for grasps in counts),
-                 _cell(row.at(0)), limit]  # fmt: skip
+                 _cell(row.at(0)), _cell(list(row.blind.values())), limit]  # fmt: skip
         lines.append("| " + " | ".join(cells) + " |")
     lines += [
         "",
@@ -716,6 +765,8 @@ def render_table(rows: Sequence[Row], compared: Sequence[Row], claims: Sequence[
         "the last take the first 30 of them.",
         "- *not learning*: the scripted floor (straight down from where the gripper starts) and random actions, "
         "evaluated once per seed on the same episodes.",
+        "- *final policy, blind*: each seed's final policy on the same episodes given another scene's images (apr's "
+        "blind baseline): what it does without seeing its own scene. A policy that uses its images loses success here.",
     ]
     if claims:
         lines += ["", f"## The four-times claim: apr at N grasps against the library at {factor}N", "",
@@ -758,7 +809,8 @@ def write_table(out: Path, compare: Sequence[Path] = (), factor: int = 4,
     numbers = {"rows": [{"preset": row.preset, "learns": row.learns, "apr": row.apr,
                          "seeds": {str(seed): {str(g): list(r) for g, r in evaluations.items()}
                                    for seed, evaluations in row.seeds.items()},
-                         "attempts": {str(seed): list(a) for seed, a in row.attempts.items()}}
+                         "attempts": {str(seed): list(a) for seed, a in row.attempts.items()},
+                         "blind": {str(seed): list(b) for seed, b in row.blind.items()}}
                         for row in [*rows, *compared]],
                "four_times": claims, "factor": factor}  # fmt: skip
     path.with_suffix(".json").write_text(json.dumps(numbers, indent=2) + "\n")
