@@ -289,6 +289,14 @@ def library_policy(model: Any, wrapper: ImageObservation, table: np.ndarray | No
     return policy
 
 
+def env_policy(model: Any, env: gym.Env) -> Policy:
+    """:func:`library_policy` of a model trained on ``env`` (:func:`make_env`'s: with :class:`DiscreteActions`
+    outermost for DQN, whose table then maps its actions)."""
+    if isinstance(env, DiscreteActions):
+        return library_policy(model, env.env, env.table)
+    return library_policy(model, env)
+
+
 # ---------------------------------------------------------------------------------------------------- run folders
 def preset_name(baseline: str, task: str, dof: int) -> str:
     """The run's ``preset`` in config.json, e.g. ``scripted-floor-benchmark-4d``; a trained baseline's adds its
@@ -440,28 +448,16 @@ def _evaluate(policy: Policy, workers: InProcessWorkers, env_id: str, dof: int, 
     return evaluate_policy(policy, env, episodes, "test", num_workers=1, workers=workers, blind=blind).to_dict()
 
 
-def blind_path(path: Path, grasps: int) -> Path:
-    """Where a run's blind evaluation at ``grasps`` goes, as apr names it (:func:`campaign.blind_eval_path`)."""
-    from apr.reproduce.campaign import blind_eval_path
-
-    return blind_eval_path(path, grasps)
-
-
-def evaluate_blind(path: Path, policy: Policy, workers: InProcessWorkers, env_id: str, dof: int, grasps: int) -> dict:
+def evaluate_blind(path: Path, policy: Policy, workers: InProcessWorkers, env_id: str, dof: int, grasps: int) -> Path:
     """The final policy on the same held-out episodes as its final evaluation, given another scene's images (apr's
-    blind baseline: what it does without seeing its own scene); written to :func:`blind_path`."""
-    from apr.reproduce.campaign import BLIND_MODE
+    blind baseline: what it does without seeing its own scene), written where apr's runs keep theirs."""
+    from apr.reproduce.campaign import BLIND_MODE, write_blind_eval
     from apr.reproduce.runs import read_json
-    from apr.train.checkpoints import write_text_atomically
 
     own = read_json(path / "eval" / f"eval_{grasps:08d}.json")
     started = time.perf_counter()
     result = _evaluate(policy, workers, env_id, dof, int(own["episodes"]), blind=BLIND_MODE)
-    result.update(grasps=grasps, blind=BLIND_MODE, eval_s=round(time.perf_counter() - started, 2))
-    write_text_atomically(blind_path(path, grasps), json.dumps(result, indent=2))
-    print(f"{path}: blind {result['success_rate']:.1%} ({result['successes']}/{result['episodes']}), with its own "
-          f"images {own['success_rate']:.1%}")  # fmt: skip
-    return result
+    return write_blind_eval(path, result, own, grasps, time.perf_counter() - started)
 
 
 # ----------------------------------------------------------------------------------------------------- the runs
@@ -524,15 +520,16 @@ def run_trained(baseline: str, args: VanillaArgs, seed: int, env_id: str, kwargs
     discrete = baseline == "sb3-dqn"
     algorithm = sb3.SAC if baseline == "sb3-sac" else sb3.DQN
     if is_finished(path) and not args.rerun:
-        if blind_path(path, total_grasps).exists() or not (path / "model.zip").exists():
+        from apr.reproduce.campaign import blind_eval_path
+
+        if blind_eval_path(path, total_grasps).exists() or not (path / "model.zip").exists():
             print(f"{path}: finished, kept")
             return path
         env = make_env(env_id, kwargs, "test", discrete, args.stack_views)
         workers = InProcessWorkers(env_id, kwargs)
         try:
-            model = algorithm.load(path / "model.zip", device="cpu")
-            policy = library_policy(model, env if not discrete else env.env, env.table if discrete else None)
-            evaluate_blind(path, policy, workers, env_id, dof, total_grasps)
+            evaluate_blind(path, env_policy(algorithm.load(path / "model.zip", device="cpu"), env), workers, env_id,
+                           dof, total_grasps)  # fmt: skip
         finally:
             env.close()
             workers.close()
@@ -563,10 +560,8 @@ def run_trained(baseline: str, args: VanillaArgs, seed: int, env_id: str, kwargs
         model.set_random_seed(seed + state["grasps"])
         _forget_after(path, state["grasps"])
         print(f"{path}: resumed at {state['grasps']} grasps ({model.num_timesteps} steps)", flush=True)
-    wrapper = env if not discrete else env.env
-    table = env.table if discrete else None
-    bias_exploration(model, args.down_probability, seed + state["grasps"], table)
-    policy = library_policy(model, wrapper, table)
+    bias_exploration(model, args.down_probability, seed + state["grasps"], env.table if discrete else None)
+    policy = env_policy(model, env)
     started = time.perf_counter() - state["wall_s"]
     clock = {"eval_s": state["eval_s"]}
     recent: list[tuple[float, float]] = [tuple(item) for item in state["recent"]]

@@ -251,11 +251,17 @@ def evaluate_blind(run_dir: Path, workers: WorkersFactory | None = None) -> Path
     blind = evaluate(snapshot.agent, config.env, int(result["episodes"]), "test",
                      config.eval_workers or config.workers, workers, trained_renderer=snapshot.renderer,
                      on_mismatch="warn", blind=BLIND_MODE).to_dict()  # fmt: skip
-    blind.update(grasps=snapshot.grasps, blind=BLIND_MODE, eval_s=round(time.monotonic() - start, 2))
-    path = blind_eval_path(run_dir, snapshot.grasps)
+    return write_blind_eval(run_dir, blind, result, snapshot.grasps, time.monotonic() - start)
+
+
+def write_blind_eval(run_dir: Path, blind: dict, own: dict, grasps: int, seconds: float) -> Path:
+    """Write a blind evaluation (an ``EvalResult`` dict) of the policy at ``grasps`` to :func:`blind_eval_path`, with
+    its mode and wall-clock seconds, and say it beside ``own`` (the same policy's evaluation with its own images)."""
+    blind.update(grasps=grasps, blind=BLIND_MODE, eval_s=round(seconds, 2))
+    path = blind_eval_path(run_dir, grasps)
     write_text_atomically(path, json.dumps(blind, indent=2))
     print(f"{run_dir}: blind {blind['success_rate']:.1%} ({blind['successes']}/{blind['episodes']}), with its own "
-          f"images {result['success_rate']:.1%}")  # fmt: skip
+          f"images {own['success_rate']:.1%}")  # fmt: skip
     return path
 
 

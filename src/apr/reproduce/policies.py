@@ -24,9 +24,9 @@ from apr.envs.rendering import EGL_INSTALL, resolve
 from apr.machine import machine_description
 from apr.model.agent import APRAgent
 from apr.model.pretrained import load_gqn_init
-from apr.reproduce.runs import blind_eval_files, final_eval, run_preset
+from apr.reproduce.runs import blind_eval_files, final_eval
 from apr.train.checkpoints import CheckpointError, newest_intact, read_checkpoint
-from apr.train.config import TrainConfig, preset
+from apr.train.config import RENAMED_PRESETS, TrainConfig, preset
 from apr.train.evaluation import renderer_mismatch, renderer_request
 from apr.train.rollout import blind_phases_text
 
@@ -275,7 +275,7 @@ def package_checkpoint(
     snapshot = load_policy(source)
     run_dir = Path(source) if Path(source).is_dir() else Path(snapshot.source).parent.parent
     config = snapshot.config
-    preset_now = run_preset({"preset": config.preset})  # its current name; the manifest's config keeps the old one
+    preset_now = RENAMED_PRESETS.get(config.preset, config.preset)  # the manifest's config keeps the old name
     name = name or f"{preset_now}__s{config.seed}__{snapshot.grasps}grasps"
     out_dir.mkdir(parents=True, exist_ok=True)
     weights = {key: value.detach().cpu().contiguous() for key, value in snapshot.agent.networks.state_dict().items()}

@@ -367,15 +367,13 @@ def _field_problems(config: TrainConfig) -> list[tuple[str, str]]:
         value, kind = getattr(model, item.name), str(item.type)
         if kind == "int":
             number(f"model.{item.name}", value, 0 if item.name in MODEL_AT_LEAST_ZERO else 1)
-        elif kind == "float" and not item.name.startswith("log_std"):
-            number(f"model.{item.name}", value, 0.0, strict=item.name != "gamma")
+        elif kind in ("float", "float | None") and not item.name.startswith("log_std"):
+            number(f"model.{item.name}", value, 0.0, strict=item.name != "gamma")  # None: no number to check
         elif isinstance(value, tuple) and (not value or any(isinstance(v, int) and v < 1 for v in value)):
             found.append((f"model.{item.name}", f"must be positive sizes, got {value}"))
     for name in ("gamma", "tau"):
         if getattr(model, name) > 1:
             found.append((f"model.{name}", f"must be at most 1, got {getattr(model, name)}"))
-    if model.fixation_init_temperature is not None:
-        number("model.fixation_init_temperature", model.fixation_init_temperature, 0.0, strict=True)
     if model.log_std_min >= model.log_std_max:
         found.append(("model.log_std_min", f"must be below --model.log-std-max ({model.log_std_max})"))
     return found
