@@ -10,9 +10,13 @@ alone (``APRAgent.gqn_update``, batch 8, as many updates as a run makes) on scen
 intervals two measures on held-out scenes: how the predicted mask of view 2 (from views 0 and 1) stands out on the
 target (its mean on the target's pixels minus its mean elsewhere; 1 is perfect, 0 is none) and a ridge readout of
 the target's xy from r (``apr probe``'s). One factor changes at a time: the cameras' layout (``cameras``, the
-environment's option), or the weight of the mask's channel in the ELBO (``--model.gqn-mask-weight``).
+environment's option), the weight of the mask's channel in the ELBO (``--model.gqn-mask-weight``), or the
+generator's size (its kernel and steps: how far across r it carries what a context view shows), or the pixel
+sigma's schedule (how much the likelihood asks of the details).
 
     python scripts/passive_gqn_probe.py --variants sides:1 front:1 sides:10 --out results/passive-cameras/gqn
+    python scripts/passive_gqn_probe.py --variants sides:1:lstm_kernel=5,generation_steps=6 \
+        sides:1:sigma_start=0.7,sigma_end=0.7 sides:1:sigma_start=0.2,sigma_end=0.2 --out results/passive-cameras/gqn
 """
 
 from __future__ import annotations
@@ -36,8 +40,9 @@ from apr.train.config import preset
 @dataclass
 class Args:
     variants: tuple[str, ...] = ("sides:1", "front:1", "sides:10")
-    """CAMERAS:MASK_WEIGHT each: the passive cameras' layout (``sides``: v4's; ``front``) and the weight of the mask's
-    channel in the ELBO (1: the paper's)."""
+    """CAMERAS:MASK_WEIGHT[:FIELD=NUMBER,...] each: the passive cameras' layout (``sides``: v4's; ``front``), the
+    weight of the mask's channel in the ELBO (1: the paper's) and, optionally, numeric fields of the model changed
+    from the preset's (``lstm_kernel=5,generation_steps=6``; ``sigma_start=0.7,sigma_end=0.7``)."""
     out: Path = Path("results/passive-cameras/gqn")
     """Where results.jsonl goes (one line per measurement)."""
     preset: str = "cpu-passive-target"
@@ -70,13 +75,16 @@ def main(args: Args) -> None:
     config = preset(args.preset).resolved()
     probe_at = set(np.linspace(0, args.updates, args.probes).astype(int).tolist())
     for variant in args.variants:
-        cameras, mask_weight = variant.split(":")
+        cameras, mask_weight, *sizes = variant.split(":")
+        overrides = {key: type(getattr(config.model, key))(value)
+                     for key, value in (item.split("=") for item in ",".join(sizes).split(",") if item)}  # fmt: skip
         own = PASSIVE_CAMERAS[config.env.env_id.rsplit("-", 1)[1]] == cameras  # "": the version's own, cached alike
         env = dataclasses.replace(config.env, cameras="" if own else cameras)
         train = cached_scenes(env, "train", args.train_scenes, PROBE_SEED, args.cache)
         heldout = cached_scenes(env, "test", args.heldout_scenes, PROBE_SEED + HELDOUT_OFFSET, args.cache)
         weight = float(mask_weight)
-        agent = APRAgent(config.model.replace(seed=args.seed, gqn_anneal_updates=args.updates, gqn_mask_weight=weight))
+        agent = APRAgent(config.model.replace(seed=args.seed, gqn_anneal_updates=args.updates, gqn_mask_weight=weight,
+                                              **overrides))  # fmt: skip
         scenes = Observation.from_env({"images": train.images, "viewpoints": train.viewpoints,
                                        "gripper": train.gripper})  # fmt: skip
         generator = torch.Generator().manual_seed(args.seed)
@@ -84,7 +92,7 @@ def main(args: Args) -> None:
         for update in range(args.updates + 1):
             if update in probe_at:
                 (probe,) = probe_entries(agent, train, heldout, "", ("target_xy",), ("linear",), 0, args.seed)
-                entry = {"cameras": cameras, "mask_weight": weight, "update": update,
+                entry = {"cameras": cameras, "mask_weight": weight, **overrides, "update": update,
                          "seconds": round(time.time() - started, 1),
                          "mask_contrast": round(mask_contrast(agent, heldout), 4),
                          "target_xy_ridge_cm": probe["heldout_median_cm"],

@@ -236,6 +236,23 @@ def test_with_critic_trains_encoder_the_critics_and_the_elbo_both_train_the_enco
     assert not any(name.startswith("generator.") for name in changed)
 
 
+def test_elbo_encoder_scale_scales_the_elbos_gradient_at_the_encoder_only() -> None:
+    """``elbo_encoder_scale``: the same losses; the ELBO's gradient at the encoder times the scale, the generator's
+    unchanged."""
+    grads = {}
+    for scale in (1.0, 0.01):
+        agent = APRAgent(ModelConfig.tiny(critic_trains_encoder=True, elbo_encoder_scale=scale))
+        losses, _ = agent.compute_losses(*random_batches(agent.config), step=0)
+        _backward(agent, losses["gqn/elbo"])
+        grads[scale] = (losses["gqn/elbo"].detach(), _grads(agent.encoder), _grads(agent.generator))
+    (elbo, encoder, generator), (scaled_elbo, scaled_encoder, scaled_generator) = grads[1.0], grads[0.01]
+    torch.testing.assert_close(scaled_elbo, elbo)
+    for full, scaled in zip(encoder, scaled_encoder, strict=True):
+        torch.testing.assert_close(scaled, 0.01 * full, rtol=1e-3, atol=1e-7)  # the forward rounds alike
+    for full, scaled in zip(generator, scaled_generator, strict=True):
+        torch.testing.assert_close(scaled, full)
+
+
 def test_update_trains_every_part_and_moves_the_targets_slowly() -> None:
     agent = APRAgent(ModelConfig.tiny())
     snapshot = {name: p.detach().clone() for name, p in agent.networks.named_parameters()}

@@ -249,6 +249,15 @@ def test_a_learned_fixation_looks_with_fixed_views_and_a_map_critic_at_cpu_scale
     assert (target.env.initial_views, target.model.fixation_critic) == ("drawn", "tiled")
 
 
+def test_the_elbos_encoder_scale_is_refused_without_the_critics_training_the_encoder():
+    """Alone the ELBO's gradient is the encoder's only one, and Adam undoes a scale of it: the flag is refused."""
+    config = preset("cpu-passive-target")
+    scaled = dataclasses.replace(config, model=config.model.replace(elbo_encoder_scale=0.0033))
+    assert any("--model.elbo-encoder-scale needs --model.critic-trains-encoder" in p for p in scaled.problems())
+    both = dataclasses.replace(scaled, model=scaled.model.replace(critic_trains_encoder=True))
+    assert both.problems() == []
+
+
 def test_a_replay_that_does_not_fit_is_refused(monkeypatch, tmp_path: Path):
     from apr.train import trainer
 

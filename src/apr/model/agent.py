@@ -456,6 +456,8 @@ class APRAgent:
                     query_images = torch.cat([query_images, fix_images])
                     query_poses = torch.cat([query_poses, fix_poses])
                     r_gqn = torch.cat([r_gqn, r_fix[:n_fix_gqn]])
+                if config.elbo_encoder_scale != 1.0:  # the same r forward, its gradient to the encoder scaled
+                    r_gqn = r_gqn * config.elbo_encoder_scale + r_gqn.detach() * (1.0 - config.elbo_encoder_scale)
                 losses["gqn/elbo"], gqn_metrics = self._elbo(r_gqn, query_images[:, 0], query_poses[:, 0], step)
                 metrics.update(gqn_metrics)
 

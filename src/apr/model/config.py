@@ -157,6 +157,12 @@ class ModelConfig:
     critic_trains_encoder: bool = False
     """With the representation: the critic losses also train the encoder, beside the ELBO (ours, a departure: the
     paper's encoder "does not accumulate gradients from the reinforcement learning losses", Method C)."""
+    elbo_encoder_scale: float = 1.0
+    """With ``critic_trains_encoder``: the scale of the ELBO's gradient where it reaches the encoder (the generator's
+    is its own). 1: the sum of the ELBO and the critic losses, in which the ELBO's gradient at the encoder was 147 and
+    316 times the grasp critic's (``cpu-passive-target --model.critic-trains-encoder`` at 200 and 600 grasps,
+    ``scripts/encoder_gradients.py``); 0.0033 (ours) gives both about one size (docs/investigations.md, "The passive
+    cameras framed on the tray")."""
 
     # --- run, precision and speed (ours) ---
     seed: int = 0

@@ -249,6 +249,9 @@ class TrainConfig:
             problems.append("--model.heads-see-fixation needs a fixation point in the observation: --env.target "
                             "learned (the point chosen), or --env.reveal-target (the simulator's answer, not the "
                             "robot's knowledge)")  # fmt: skip
+        if self.model.elbo_encoder_scale != 1.0 and not self.model.critic_trains_encoder:
+            problems.append("--model.elbo-encoder-scale needs --model.critic-trains-encoder: alone, the ELBO's is the "
+                            "encoder's only gradient and Adam undoes its scale")  # fmt: skip
         if self.model.heads_see_steps_left and not self.env.observes_steps_left:
             problems.append(f"--model.heads-see-steps-left needs the steps left in the observation: --env.env-id "
                             f"{self.env.env_id} is the earlier task, whose limit truncates with no clock; use its "
