@@ -14,8 +14,15 @@ centres). From the run's newest checkpoint and its replay this script reports:
    the label a probe may read; the paper's grasp reward of the chosen point alone, not relabelled, "chosen"), and its
    best point's distance to the nearest object on the last 20%, beside one
    fixed point (the bin centre) and the run's own points on those samples.
+4. with ``--critics projective``, the same for a critic that reads each lattice point's value where the robot's own
+   cameras see that point: the conv block's features sampled, in each initial view, at the point's image position
+   (its projection through the head camera's pose and field of view, then the log-polar warp), and one small network
+   shared by every point (:class:`ProjectiveMapCritic`). What a place looks like is learned once for all places,
+   where the map critic's linear layer learns each place's value apart.
 
     python scripts/hindsight_labels_probe.py results/fixation-reward/cpu-active-learned-4d-relabel__s0
+    python scripts/hindsight_labels_probe.py results/table1-cpu/cpu-active-learned-4d__s1 --rewards chosen proximity \
+        --critics map projective
 
 Prints one JSON object (docs/investigations.md, "The fixation bandit's reward").
 """
@@ -30,17 +37,22 @@ from typing import Annotated, Literal
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 import tyro
+from torch import nn
 
-from apr.envs.config import REWARD, SCENE
+from apr.envs.config import HEAD, REWARD, SCENE
+from apr.envs.rendering import Camera
 from apr.model.agent import Observation, fixation_points, hindsight_grasp_reward, proximity_reward
-from apr.model.heads import PolicyHeads
+from apr.model.heads import MapCritic, PolicyHeads
 from apr.model.sac import bandit_critic_loss
+from apr.reproduce.episodes import make_env
 from apr.reproduce.policies import load_run
 from apr.train.checkpoints import newest_intact, replay_file
 from apr.train.replay import ReplayBuffer, ReplaySpec
 
 Reward = Literal["grasp", "tip-proximity", "proximity", "chosen"]
+CriticKind = Literal["map", "projective"]
 
 
 @dataclass
@@ -55,6 +67,9 @@ class Args:
     train_samples: tuple[int, ...] = (0,)
     """How many samples each critic learns from, one critic each: the last N before the held-out ones (0: all of the
     first 80%). Fewer samples than the run's say how the look improves with the bandit's data."""
+    critics: tuple[CriticKind, ...] = ("map",)
+    """The upper-bound critic's kind, one critic each: the preset's map critic, or one that reads each place where the
+    initial views see it (:class:`ProjectiveMapCritic`)."""
     updates: int = 3000
     relabels: int = 64
     batch: int = 32
@@ -66,6 +81,69 @@ def nearest_xy_cm(points: np.ndarray, centres: np.ndarray) -> np.ndarray:
     skipped."""
     offsets = points[:, None, :2] - centres[:, :, :2]
     return 100 * np.nanmin(np.linalg.norm(offsets, axis=-1), axis=1)
+
+
+def image_coordinates(camera: Camera, points: np.ndarray, foveation: str) -> np.ndarray:
+    """Where the world points (N, 3) lie in the camera's 64x64 view: (N, 2) in [-1, 1], x to the right and y down (the
+    frame of ``grid_sample``): the pinhole projection of the camera's pose and square field of view, then, for the
+    log-polar view, the inverse of the warp ``(u, v) -> log(rho + 1) (u, v)`` (:func:`apr.foveation.logpolar_grid`)."""
+    forward = camera.forward / np.linalg.norm(camera.forward)
+    right = np.cross(forward, camera.up)
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    offset = points - camera.eye
+    scale = (offset @ forward) * math.tan(math.radians(camera.fov_deg) / 2)
+    rendered = np.stack([offset @ right / scale, -(offset @ up) / scale], axis=-1)
+    if foveation != "logpolar":
+        return rendered
+    radius = np.linalg.norm(rendered, axis=-1)
+    low, high = np.zeros_like(radius), np.full_like(radius, 4.0)
+    for _ in range(60):  # rho log(rho + 1) = radius, by bisection (it rises monotonically)
+        middle = (low + high) / 2
+        below = middle * np.log(middle + 1) < radius
+        low, high = np.where(below, middle, low), np.where(below, high, middle)
+    return rendered * ((low + high) / 2 / np.maximum(radius, 1e-12))[:, None]
+
+
+def initial_view_grid(env_config, map_grid: int, height: float) -> torch.Tensor:
+    """(V, G, G, 2): where each point of the map critic's lattice over the fixation box (at ``height`` m) lies in
+    each fixed initial view, the lattice indexed [x, y] as :class:`MapCritic`'s."""
+    env = make_env(env_config, "train")
+    try:
+        env.reset(seed=0)
+        world = env.unwrapped.world
+        lattice = torch.linspace(-1.0, 1.0, map_grid)
+        x, y = torch.meshgrid(lattice, lattice, indexing="ij")
+        points = fixation_points(torch.stack([x, y, torch.zeros_like(x)], dim=-1).reshape(-1, 3)).numpy()
+        points[:, 2] = height
+        grids = []
+        for view in HEAD.fixed_initial_views:
+            camera, _ = world.head.look_from(env.unwrapped.fixation_point, *view)
+            grids.append(image_coordinates(camera, points, env_config.foveation).reshape(map_grid, map_grid, 2))
+    finally:
+        env.close()
+    return torch.from_numpy(np.stack(grids)).float()
+
+
+class ProjectiveMapCritic(MapCritic):
+    """A map critic whose value at each lattice point is read where the initial views see that point: the conv block's
+    features (without the flattening) sampled at the point's position in each view, concatenated, and a 1x1-conv
+    network shared by all points. ``view_grid``: (V, G, G, 2) from :func:`initial_view_grid`."""
+
+    def __init__(self, representation_channels: int, action_dim: int, channels: tuple[int, ...],
+                 view_grid: torch.Tensor, hidden: int = 32) -> None:  # fmt: skip
+        super().__init__(representation_channels, action_dim, channels, map_grid=view_grid.shape[1])
+        self.trunk = self.trunk[:-1]  # the features keep their places
+        self.out = nn.Sequential(nn.Conv2d(channels[-1] * len(view_grid), hidden, 1), nn.ReLU(),
+                                 nn.Conv2d(hidden, 1, 1))  # fmt: skip
+        self.register_buffer("view_grid", view_grid)
+
+    def value_map(self, r: torch.Tensor) -> torch.Tensor:
+        features = self.trunk(r.float())  # (B, C, 16, 16)
+        # grid_sample's point is (x, y) = (column, row) of the image; view_grid holds (x right, y down) already
+        sampled = [F.grid_sample(features, grid.expand(len(r), -1, -1, -1), align_corners=False)
+                   for grid in self.view_grid]  # fmt: skip
+        return self.out(torch.cat(sampled, dim=1))[:, 0]  # (B, G, G)
 
 
 def main(args: Args) -> dict:
@@ -119,12 +197,23 @@ def main(args: Args) -> dict:
     arrays = {"action": action, "reward": reward, "lifted": lifted, "tip": tip, "centres": centres}
     tensors = {name: torch.from_numpy(value) for name, value in arrays.items()}
     paper_radius = (REWARD.fixation_radius * 100,)
-    variants = [(kind, radius, samples) for kind in args.rewards
+    variants = [(kind, radius, samples, critic) for kind in args.rewards
                 for radius in (paper_radius if kind in ("proximity", "chosen") else args.radii_cm)
-                for samples in args.train_samples]  # fmt: skip
-    for kind, radius_cm, samples in variants:  # "chosen": the point the run chose and its reward, one per sample
+                for samples in args.train_samples for critic in args.critics]  # fmt: skip
+    view_grid = None
+    if "projective" in args.critics:
+        if config.env.initial_views != "fixed":
+            raise SystemExit(f"{args.run}: --critics projective needs the fixed initial views of the CPU presets")
+        height = float(np.nanmedian(centres[..., 2]))  # where objects lie: the lattice's height
+        view_grid = initial_view_grid(config.env, MapCritic(1, 3).map_grid, height)
+        report["projective_lattice_height_m"] = height
+        report["projective_lattice_in_view"] = float((view_grid.abs() <= 1).all(dim=-1).float().mean())
+    for kind, radius_cm, samples, critic in variants:  # "chosen": the point the run chose and its reward, one each
         first = train.stop - min(samples or train.stop, train.stop)
         heads = PolicyHeads(r.shape[1], 3, tuple(model.head_channels), grid=r.shape[-1], critic="map")
+        if critic == "projective":  # the twin critics replaced, the rest of the heads kept
+            heads.critic.q1, heads.critic.q2 = (ProjectiveMapCritic(r.shape[1], 3, tuple(model.head_channels),
+                                                                    view_grid) for _ in range(2))  # fmt: skip
         optimizer = torch.optim.Adam(heads.critic.parameters(), lr=model.sac_lr)
         for _ in range(args.updates):
             index = torch.randint(first, train.stop, (args.batch,), generator=rng)
@@ -147,6 +236,7 @@ def main(args: Args) -> dict:
         points = fixation_points(torch.cat([best, torch.zeros(len(best), 1)], dim=1)).numpy()
         name = kind if radius_cm == REWARD.fixation_radius * 100 else f"{kind}@{radius_cm:g}cm"
         name += f"/{samples}" if samples else ""
+        name += "/projective" if critic == "projective" else ""
         report[f"critic_{name}_held_out_cm"] = float(np.median(nearest_xy_cm(points, centres[held])))
     print(json.dumps(report))
     return report

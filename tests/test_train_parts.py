@@ -137,7 +137,8 @@ def test_preset_table_matches_the_paper():
     names = ("relabel", "bandit-temperature1", "tip-proximity", "proximity")
     variants = {f"cpu-active-learned-4d-{name}" for name in names}
     assert set(PRESETS) == {
-        *PAPER_PRESETS, *(f"cpu-{name}" for name in PAPER_PRESETS), "cpu-4d", *variants, "smoke",
+        *PAPER_PRESETS, *(f"cpu-{name}" for name in PAPER_PRESETS), "cpu-4d", *variants,
+        "cpu-passive-target-elbo-encoder", "smoke",
     }  # fmt: skip
     learned = preset("cpu-active-learned-4d")
     assert (learned.model.fixation_reward, learned.model.fixation_relabels) == ("grasp", 0)  # the paper's bandit
@@ -251,11 +252,24 @@ def test_a_learned_fixation_looks_with_fixed_views_and_a_map_critic_at_cpu_scale
 
 def test_the_elbos_encoder_scale_is_refused_without_the_critics_training_the_encoder():
     """Alone the ELBO's gradient is the encoder's only one, and Adam undoes a scale of it: the flag is refused."""
-    config = preset("cpu-passive-target")
+    config = preset("cpu-passive-target-elbo-encoder")
     scaled = dataclasses.replace(config, model=config.model.replace(elbo_encoder_scale=0.0033))
     assert any("--model.elbo-encoder-scale needs --model.critic-trains-encoder" in p for p in scaled.problems())
     both = dataclasses.replace(scaled, model=scaled.model.replace(critic_trains_encoder=True))
     assert both.problems() == []
+
+
+def test_the_passive_rows_encoder_learns_from_its_critics_too_at_cpu_scale_only():
+    """CPU scale: the passive row with the generator trains its encoder with the critics and the ELBO scaled; the paper
+    size, the row without the generator, the active rows and the variant keep the paper's encoder."""
+    cpu = preset("cpu-passive-target").model
+    assert (cpu.critic_trains_encoder, cpu.elbo_encoder_scale) == (True, 0.0033)
+    for name in ("passive-target", "cpu-passive-target-elbo-encoder", "cpu-active-target", "cpu-active-learned-4d"):
+        model = preset(name).model
+        assert (model.critic_trains_encoder, model.elbo_encoder_scale) == (False, 1.0), name
+    assert not preset("cpu-passive-target-no-representation").model.critic_trains_encoder
+    variant = preset("cpu-passive-target-elbo-encoder")
+    assert variant.env == preset("cpu-passive-target").env and variant.problems() == []
 
 
 def test_a_replay_that_does_not_fit_is_refused(monkeypatch, tmp_path: Path):
