@@ -41,7 +41,7 @@ import torch.nn.functional as F
 import tyro
 from torch import nn
 
-from apr.envs.config import HEAD, REWARD, SCENE
+from apr.envs.config import HEAD, REWARD, SCENE, EnvConfig
 from apr.envs.rendering import Camera
 from apr.model.agent import Observation, fixation_points, hindsight_grasp_reward, proximity_reward
 from apr.model.heads import MapCritic, PolicyHeads
@@ -105,7 +105,7 @@ def image_coordinates(camera: Camera, points: np.ndarray, foveation: str) -> np.
     return rendered * ((low + high) / 2 / np.maximum(radius, 1e-12))[:, None]
 
 
-def initial_view_grid(env_config, map_grid: int, height: float) -> torch.Tensor:
+def initial_view_grid(env_config: EnvConfig, map_grid: int, height: float) -> torch.Tensor:
     """(V, G, G, 2): where each point of the map critic's lattice over the fixation box (at ``height`` m) lies in
     each fixed initial view, the lattice indexed [x, y] as :class:`MapCritic`'s."""
     env = make_env(env_config, "train")

@@ -470,6 +470,11 @@ with a learned fixation, how it looks (:data:`CPU_LOOK_MODEL`: the critic; and t
 the proximity reward's radius)."""
 
 
+def trains_passive_encoder_at_cpu_scale(config: TrainConfig) -> bool:
+    """Whether :data:`CPU_PASSIVE_MODEL` applies at CPU scale: the passive model with the generator."""
+    return is_passive(config.env.env_id) and config.model.representation
+
+
 def cpu_scale(name: str, config: TrainConfig) -> TrainConfig:
     """The CPU scale of the paper preset ``name`` (``config``): the same env, structure and recipe, with tiny
     networks (:meth:`ModelConfig.tiny`), :data:`CPU_MODEL`, TinyRenderer at 128 and :data:`TABLE1_CPU_RUN`; a
@@ -477,7 +482,7 @@ def cpu_scale(name: str, config: TrainConfig) -> TrainConfig:
     the generator trains its encoder as :data:`CPU_PASSIVE_MODEL` says."""
     kept = {field_name: getattr(config.model, field_name) for field_name in SCALE_FREE_MODEL_FIELDS}
     learned = config.env.learned_fixation
-    passive = is_passive(config.env.env_id) and config.model.representation
+    passive = trains_passive_encoder_at_cpu_scale(config)
     env = dataclasses.replace(config.env, **CPU_RENDERING, **(CPU_LOOK_ENV if learned else {}))
     model = ModelConfig.tiny(**kept, **CPU_MODEL, **(CPU_LOOK_MODEL if learned else {}),
                              **(CPU_PASSIVE_MODEL if passive else {}))  # fmt: skip
@@ -508,8 +513,8 @@ CPU_SCALE = {
     CPU_PREFIX + name: (f"{name} at CPU scale: tiny networks, TinyRenderer at 128, {TABLE1_CPU_GRASPS} grasps; the "
                         "same structure and recipe" + ("; the fixation looks from fixed initial views with a map "
                                                        "critic" if config.env.learned_fixation else "")
-                        + ("; the critics train the encoder beside the ELBO, scaled" if
-                           is_passive(config.env.env_id) and config.model.representation else ""),
+                        + ("; the critics train the encoder beside the ELBO, scaled"
+                           if trains_passive_encoder_at_cpu_scale(config) else ""),
                         cpu_scale(name, config))
     for name, (_, config) in PAPER_SCALE.items()
 }  # fmt: skip
