@@ -41,7 +41,7 @@ import torch.nn.functional as F
 import tyro
 from torch import nn
 
-from apr.envs.config import HEAD, REWARD, SCENE, EnvConfig
+from apr.envs.config import HEAD, REWARD, SCENE
 from apr.envs.rendering import Camera
 from apr.model.agent import Observation, fixation_points, hindsight_grasp_reward, proximity_reward
 from apr.model.heads import MapCritic, PolicyHeads
@@ -49,6 +49,7 @@ from apr.model.sac import bandit_critic_loss
 from apr.reproduce.episodes import make_env
 from apr.reproduce.policies import load_run
 from apr.train.checkpoints import newest_intact, replay_file
+from apr.train.config import EnvConfig
 from apr.train.replay import ReplayBuffer, ReplaySpec
 
 Reward = Literal["grasp", "tip-proximity", "proximity", "chosen"]
